@@ -1,0 +1,21 @@
+//! Geometry kernel of raymesh: rays, axis-aligned boxes, and the ray tests for
+//! triangles and spheres.
+//!
+//! Conventions (as in glam): column vectors, right-handed, `f32` storage. A ray
+//! is `origin + t * dir` for `t` in `[tmin, tmax]`; `t` is in units of `dir`,
+//! which need not be normalized. Every kernel here is exact in the sense the
+//! acceleration structures need: the same inputs give the same bits, whatever
+//! structure calls them.
+
+mod aabb;
+mod float;
+mod ray;
+mod sphere;
+mod triangle;
+
+pub use aabb::Aabb;
+pub use float::{gamma, next_down, next_up};
+pub use glam::{Mat3, Mat4, Vec2, Vec3};
+pub use ray::Ray;
+pub use sphere::{intersect_sphere, Sphere, SphereHit};
+pub use triangle::{intersect_triangle, triangle_area2, TriHit, Triangle};

@@ -1,0 +1,191 @@
+//! Rays with the per-ray values every traversal needs, computed once.
+
+use glam::Vec3;
+
+/// A ray `origin + t * dir` restricted to `t` in `[tmin, tmax]`.
+///
+/// The constructor precomputes the reciprocal direction (for the slab test)
+/// and the shear of the watertight triangle test (Woop, Benthin & Wald,
+/// "Watertight Ray/Triangle Intersection", JCGT 2013), so a traversal pays
+/// for them once per ray rather than once per node or triangle.
+///
+/// A ray whose origin or direction is not finite, whose direction is zero,
+/// or whose interval is NaN or empty is *invalid*: it keeps its values but its
+/// interval is set empty, so every test in this crate reports a miss for it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Ray {
+    origin: Vec3,
+    dir: Vec3,
+    inv_dir: Vec3,
+    tmin: f32,
+    tmax: f32,
+    /// Shear constants `(dx/dz, dy/dz, 1/dz)` in the permuted axes.
+    shear: Vec3,
+    /// Axis permutation `(kx, ky, kz)`: `kz` is the dominant axis of `dir`.
+    k: [u8; 3],
+}
+
+impl Ray {
+    /// Makes a ray over `[tmin, tmax]`; `tmax` may be `f32::INFINITY`.
+    #[must_use]
+    pub fn new(origin: Vec3, dir: Vec3, tmin: f32, tmax: f32) -> Self {
+        let valid = origin.is_finite()
+            && dir.is_finite()
+            && dir != Vec3::ZERO
+            && !tmin.is_nan()
+            && !tmax.is_nan()
+            && tmin <= tmax;
+        // 1/±0 is ±inf, which the slab test handles; see `Aabb::intersect_ray`.
+        let inv_dir = Vec3::ONE / dir;
+        let abs = dir.abs();
+        let kz = if abs.x >= abs.y && abs.x >= abs.z {
+            0
+        } else if abs.y >= abs.z {
+            1
+        } else {
+            2
+        };
+        let mut kx = (kz + 1) % 3;
+        let mut ky = (kx + 1) % 3;
+        // Keep the winding of the projected triangle independent of the sign of dz.
+        if dir[kz] < 0.0 {
+            std::mem::swap(&mut kx, &mut ky);
+        }
+        let dz = dir[kz];
+        let shear = Vec3::new(dir[kx] / dz, dir[ky] / dz, 1.0 / dz);
+        let (tmin, tmax) = if valid {
+            (tmin, tmax)
+        } else {
+            (f32::INFINITY, f32::NEG_INFINITY)
+        };
+        Self {
+            origin,
+            dir,
+            inv_dir,
+            tmin,
+            tmax,
+            shear,
+            k: [kx as u8, ky as u8, kz as u8],
+        }
+    }
+
+    /// Makes a ray over `[0, +inf)`.
+    #[inline]
+    #[must_use]
+    pub fn infinite(origin: Vec3, dir: Vec3) -> Self {
+        Self::new(origin, dir, 0.0, f32::INFINITY)
+    }
+
+    /// The same ray with another upper bound (an invalid ray stays invalid).
+    #[inline]
+    #[must_use]
+    pub fn with_tmax(mut self, tmax: f32) -> Self {
+        if self.is_valid() && !tmax.is_nan() {
+            self.tmax = tmax;
+        }
+        self
+    }
+
+    /// Origin of the ray.
+    #[inline]
+    #[must_use]
+    pub fn origin(&self) -> Vec3 {
+        self.origin
+    }
+
+    /// Direction of the ray, as given (not normalized).
+    #[inline]
+    #[must_use]
+    pub fn dir(&self) -> Vec3 {
+        self.dir
+    }
+
+    /// Componentwise `1 / dir`; a zero component gives an infinity of its sign.
+    #[inline]
+    #[must_use]
+    pub fn inv_dir(&self) -> Vec3 {
+        self.inv_dir
+    }
+
+    /// Lower end of the ray's interval.
+    #[inline]
+    #[must_use]
+    pub fn tmin(&self) -> f32 {
+        self.tmin
+    }
+
+    /// Upper end of the ray's interval.
+    #[inline]
+    #[must_use]
+    pub fn tmax(&self) -> f32 {
+        self.tmax
+    }
+
+    /// Whether the ray can hit anything (finite input and a non-empty interval).
+    #[inline]
+    #[must_use]
+    pub fn is_valid(&self) -> bool {
+        self.tmin <= self.tmax
+    }
+
+    /// The point at parameter `t`.
+    #[inline]
+    #[must_use]
+    pub fn at(&self, t: f32) -> Vec3 {
+        self.origin + t * self.dir
+    }
+
+    /// Shear constants of the watertight triangle test.
+    #[inline]
+    pub(crate) fn shear(&self) -> (Vec3, [usize; 3]) {
+        (
+            self.shear,
+            [self.k[0] as usize, self.k[1] as usize, self.k[2] as usize],
+        )
+    }
+
+    /// Index `0..8` of the direction's octant: bit `i` set when `dir[i]` is negative (or -0.0).
+    /// Traversals use it to visit nearer children first.
+    #[inline]
+    #[must_use]
+    pub fn octant(&self) -> usize {
+        // The sign bit, not `< 0.0`: a direction of -0.0 has a reciprocal of -inf.
+        self.dir.x.is_sign_negative() as usize
+            | (self.dir.y.is_sign_negative() as usize) << 1
+            | (self.dir.z.is_sign_negative() as usize) << 2
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn invalid_rays_have_empty_interval() {
+        let o = Vec3::ZERO;
+        for (origin, dir, tmin, tmax) in [
+            (Vec3::new(f32::NAN, 0.0, 0.0), Vec3::X, 0.0, 1.0),
+            (o, Vec3::new(0.0, f32::NAN, 0.0), 0.0, 1.0),
+            (o, Vec3::ZERO, 0.0, 1.0),
+            (o, Vec3::new(f32::INFINITY, 0.0, 0.0), 0.0, 1.0),
+            (Vec3::splat(f32::NEG_INFINITY), Vec3::X, 0.0, 1.0),
+            (o, Vec3::X, f32::NAN, 1.0),
+            (o, Vec3::X, 0.0, f32::NAN),
+            (o, Vec3::X, 2.0, 1.0),
+        ] {
+            let r = Ray::new(origin, dir, tmin, tmax);
+            assert!(!r.is_valid(), "{origin:?} {dir:?} {tmin} {tmax}");
+            assert!(!r.with_tmax(5.0).is_valid());
+        }
+        assert!(Ray::new(o, Vec3::X, 0.0, f32::INFINITY).is_valid());
+        assert!(Ray::new(o, Vec3::X, 1.0, 1.0).is_valid());
+    }
+
+    #[test]
+    fn shear_axis_is_dominant() {
+        let r = Ray::infinite(Vec3::ZERO, Vec3::new(0.1, -3.0, 0.5));
+        let (_, k) = r.shear();
+        assert_eq!(k[2], 1);
+        assert_eq!(r.octant(), 0b010);
+    }
+}

@@ -1,0 +1,289 @@
+//! Watertight ray–triangle intersection (Woop, Benthin & Wald, JCGT 2013).
+
+use crate::Ray;
+use glam::Vec3;
+
+/// A triangle given by its three corners.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Triangle {
+    /// The corners, in winding order.
+    pub v: [Vec3; 3],
+}
+
+/// Result of a ray–triangle test: distance along the ray and the barycentric
+/// weights `u`, `v` of the 2nd and 3rd corner (the 1st has `1 - u - v`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TriHit {
+    /// Ray parameter of the hit.
+    pub t: f32,
+    /// Weight of the second corner.
+    pub u: f32,
+    /// Weight of the third corner.
+    pub v: f32,
+}
+
+impl Triangle {
+    /// Makes a triangle.
+    #[inline]
+    #[must_use]
+    pub fn new(a: Vec3, b: Vec3, c: Vec3) -> Self {
+        Self { v: [a, b, c] }
+    }
+
+    /// Unnormalized geometric normal `(b - a) × (c - a)`; zero when degenerate.
+    #[inline]
+    #[must_use]
+    pub fn normal(&self) -> Vec3 {
+        (self.v[1] - self.v[0]).cross(self.v[2] - self.v[0])
+    }
+
+    /// Bounding box.
+    #[inline]
+    #[must_use]
+    pub fn bounds(&self) -> crate::Aabb {
+        crate::Aabb::from_point(self.v[0])
+            .grow(self.v[1])
+            .grow(self.v[2])
+    }
+
+    /// Ray test over `[ray.tmin, tmax]`; see [`intersect_triangle`].
+    #[inline]
+    #[must_use]
+    pub fn intersect(&self, ray: &Ray, tmax: f32) -> Option<TriHit> {
+        intersect_triangle(ray, tmax, self.v[0], self.v[1], self.v[2])
+    }
+}
+
+/// Twice the area of a triangle, computed in f64 so that tiny triangles far
+/// from the origin are not reported degenerate by rounding alone.
+#[must_use]
+pub fn triangle_area2(a: Vec3, b: Vec3, c: Vec3) -> f64 {
+    let a = a.as_dvec3();
+    (b.as_dvec3() - a).cross(c.as_dvec3() - a).length()
+}
+
+/// Watertight ray–triangle test over `[ray.tmin, tmax]`, both sides counted.
+///
+/// The ray is sheared so that it runs along +z from the origin; the triangle's
+/// edge functions are then evaluated in 2D at the origin. Edges shared by two
+/// triangles are evaluated with the same operands in both, so a ray through a
+/// shared edge or vertex hits at least one of them (never falls through a
+/// crack). An edge function that rounds to exactly zero is recomputed in f64,
+/// as the paper prescribes. Degenerate (zero-area) triangles never hit, and
+/// neither do rays in the triangle's plane. Invalid rays never hit.
+#[inline]
+#[must_use]
+pub fn intersect_triangle(ray: &Ray, tmax: f32, p0: Vec3, p1: Vec3, p2: Vec3) -> Option<TriHit> {
+    let (s, [kx, ky, kz]) = ray.shear();
+    let o = ray.origin();
+    let a = p0 - o;
+    let b = p1 - o;
+    let c = p2 - o;
+    let ax = a[kx] - s.x * a[kz];
+    let ay = a[ky] - s.y * a[kz];
+    let bx = b[kx] - s.x * b[kz];
+    let by = b[ky] - s.y * b[kz];
+    let cx = c[kx] - s.x * c[kz];
+    let cy = c[ky] - s.y * c[kz];
+
+    let mut u = cx * by - cy * bx;
+    let mut v = ax * cy - ay * cx;
+    let mut w = bx * ay - by * ax;
+    if u == 0.0 || v == 0.0 || w == 0.0 {
+        let (ax, ay, bx, by, cx, cy) = (
+            ax as f64, ay as f64, bx as f64, by as f64, cx as f64, cy as f64,
+        );
+        u = (cx * by - cy * bx) as f32;
+        v = (ax * cy - ay * cx) as f32;
+        w = (bx * ay - by * ax) as f32;
+    }
+    if (u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0) {
+        return None;
+    }
+    let det = u + v + w;
+    if det == 0.0 || det.is_nan() {
+        return None;
+    }
+    let az = s.z * a[kz];
+    let bz = s.z * b[kz];
+    let cz = s.z * c[kz];
+    let t_scaled = u * az + v * bz + w * cz;
+    let inv_det = 1.0 / det;
+    let t = t_scaled * inv_det;
+    // `!(t >= tmin)` also rejects NaN, and an invalid ray has tmin = +inf.
+    if !(t >= ray.tmin() && t <= tmax) {
+        return None;
+    }
+    Some(TriHit {
+        t,
+        u: v * inv_det,
+        v: w * inv_det,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn tri() -> [Vec3; 3] {
+        [Vec3::ZERO, Vec3::X, Vec3::Y]
+    }
+
+    #[test]
+    fn hits_and_barycentrics() {
+        let [a, b, c] = tri();
+        let r = Ray::infinite(Vec3::new(0.25, 0.5, 1.0), -Vec3::Z);
+        let h = intersect_triangle(&r, f32::INFINITY, a, b, c).unwrap();
+        assert_eq!(h.t, 1.0);
+        assert!((h.u - 0.25).abs() < 1e-6 && (h.v - 0.5).abs() < 1e-6);
+        // Back side counts too.
+        let r = Ray::infinite(Vec3::new(0.25, 0.5, -2.0), Vec3::Z * 2.0);
+        assert_eq!(
+            intersect_triangle(&r, f32::INFINITY, a, b, c).unwrap().t,
+            1.0
+        );
+        // Outside.
+        let r = Ray::infinite(Vec3::new(0.75, 0.75, 1.0), -Vec3::Z);
+        assert!(intersect_triangle(&r, f32::INFINITY, a, b, c).is_none());
+        // Behind the origin / beyond tmax.
+        let r = Ray::infinite(Vec3::new(0.25, 0.25, -1.0), -Vec3::Z);
+        assert!(intersect_triangle(&r, f32::INFINITY, a, b, c).is_none());
+        let r = Ray::new(Vec3::new(0.25, 0.25, 2.0), -Vec3::Z, 0.0, 1.5);
+        assert!(intersect_triangle(&r, r.tmax(), a, b, c).is_none());
+    }
+
+    #[test]
+    fn degenerate_and_coplanar_never_hit() {
+        let r = Ray::infinite(Vec3::new(0.5, 0.0, 1.0), -Vec3::Z);
+        assert!(
+            intersect_triangle(&r, f32::INFINITY, Vec3::ZERO, Vec3::X, Vec3::X * 2.0).is_none()
+        );
+        assert!(intersect_triangle(&r, f32::INFINITY, Vec3::X, Vec3::X, Vec3::X).is_none());
+        let r = Ray::infinite(Vec3::new(-1.0, 0.2, 0.0), Vec3::X);
+        let [a, b, c] = tri();
+        assert!(intersect_triangle(&r, f32::INFINITY, a, b, c).is_none());
+        let r = Ray::infinite(Vec3::new(f32::NAN, 0.2, 1.0), -Vec3::Z);
+        assert!(intersect_triangle(&r, f32::INFINITY, a, b, c).is_none());
+    }
+
+    /// Plain f64 Möller–Trumbore, as the reference.
+    fn reference(o: Vec3, d: Vec3, [a, b, c]: [Vec3; 3]) -> Option<(f64, f64, f64)> {
+        let (o, d) = (o.as_dvec3(), d.as_dvec3());
+        let (a, b, c) = (a.as_dvec3(), b.as_dvec3(), c.as_dvec3());
+        let e1 = b - a;
+        let e2 = c - a;
+        let p = d.cross(e2);
+        let det = e1.dot(p);
+        if det.abs() < 1e-12 {
+            return None;
+        }
+        let s = o - a;
+        let u = s.dot(p) / det;
+        let q = s.cross(e1);
+        let v = d.dot(q) / det;
+        let t = e2.dot(q) / det;
+        (u >= 0.0 && v >= 0.0 && u + v <= 1.0 && t >= 0.0).then_some((t, u, v))
+    }
+
+    fn v3(r: f32) -> impl Strategy<Value = Vec3> {
+        (-r..r, -r..r, -r..r).prop_map(|(x, y, z)| Vec3::new(x, y, z))
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(20000))]
+        /// Agrees with an f64 reference away from the edges (margin 1e-4 in
+        /// barycentrics), and its t and barycentrics are close when both hit.
+        #[test]
+        fn matches_f64_reference(a in v3(2.0), b in v3(2.0), c in v3(2.0), o in v3(4.0), d in v3(1.0)) {
+            prop_assume!(d.length() > 1e-3);
+            let n = (b - a).cross(c - a);
+            prop_assume!(n.length() > 1e-2);
+            let r = Ray::infinite(o, d);
+            let got = intersect_triangle(&r, f32::INFINITY, a, b, c);
+            let want = reference(o, d, [a, b, c]);
+            // Skip grazing configurations where the two may legitimately differ.
+            let cosang = (n.normalize().dot(d.normalize())).abs();
+            prop_assume!(cosang > 1e-2);
+            match (got, want) {
+                (Some(h), Some((t, u, v))) => {
+                    prop_assert!((h.t as f64 - t).abs() <= 1e-3 * (1.0 + t.abs()), "{} vs {}", h.t, t);
+                    prop_assert!((h.u as f64 - u).abs() <= 1e-3 && (h.v as f64 - v).abs() <= 1e-3);
+                }
+                (None, Some((t, u, v))) => {
+                    let margin = u.min(v).min(1.0 - u - v);
+                    prop_assert!(margin < 1e-4 || t < 1e-4, "missed a clear hit {t} {u} {v}");
+                }
+                (Some(h), None) => {
+                    let margin = h.u.min(h.v).min(1.0 - h.u - h.v);
+                    prop_assert!(margin.abs() < 1e-4 || h.t.abs() < 1e-4, "false hit {h:?}");
+                }
+                (None, None) => {}
+            }
+        }
+    }
+
+    /// A ray that starts inside a closed mesh must leave it, so it must hit
+    /// some triangle, also when aimed exactly at a shared vertex or at a point
+    /// of a shared edge (watertightness).
+    #[test]
+    fn watertight_on_shared_edges_and_vertices() {
+        use proptest::test_runner::{Config, TestRunner};
+        // An octahedron with off-grid vertices, so that rounding is exercised.
+        let v = [
+            Vec3::new(1.1, 0.013, -0.07),
+            Vec3::new(-0.97, 0.021, 0.05),
+            Vec3::new(0.031, 1.23, 0.011),
+            Vec3::new(-0.02, -1.07, 0.03),
+            Vec3::new(0.04, 0.017, 0.93),
+            Vec3::new(0.013, -0.029, -1.11),
+        ];
+        let faces = [
+            [0, 2, 4],
+            [2, 1, 4],
+            [1, 3, 4],
+            [3, 0, 4],
+            [2, 0, 5],
+            [1, 2, 5],
+            [3, 1, 5],
+            [0, 3, 5],
+        ];
+        let edges: Vec<(usize, usize)> = faces
+            .iter()
+            .flat_map(|f| [(f[0], f[1]), (f[1], f[2]), (f[2], f[0])])
+            .collect();
+        let mut runner = TestRunner::new(Config {
+            cases: 50000,
+            ..Config::default()
+        });
+        let strat = (
+            v3(0.3),
+            0usize..(6 + edges.len()),
+            0.0f32..1.0,
+            1e-3f32..1e3,
+        );
+        runner
+            .run(&strat, |(o, which, s, scale)| {
+                let target = if which < 6 {
+                    v[which]
+                } else {
+                    let (a, b) = edges[which - 6];
+                    v[a].lerp(v[b], s)
+                };
+                let r = Ray::infinite(o, (target - o) * scale);
+                let hit = faces.iter().any(|f| {
+                    intersect_triangle(&r, f32::INFINITY, v[f[0]], v[f[1]], v[f[2]]).is_some()
+                });
+                prop_assert!(hit, "ray from {o:?} to {target:?} fell through");
+                Ok(())
+            })
+            .unwrap();
+    }
+
+    #[test]
+    fn area_in_f64() {
+        let far = Vec3::splat(1e6);
+        assert!(triangle_area2(far, far + Vec3::X * 0.5, far + Vec3::Y * 0.5) > 0.0);
+        assert_eq!(triangle_area2(Vec3::ZERO, Vec3::X, Vec3::X * 2.0), 0.0);
+    }
+}
