@@ -1,0 +1,98 @@
+//! End-to-end tests of `raymesh info`.
+
+use std::path::PathBuf;
+use std::process::Command;
+
+fn raymesh() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_raymesh"))
+}
+
+fn data(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../tests/data")
+        .join(name)
+}
+
+#[test]
+fn info_json_has_the_contract_keys() {
+    let out = raymesh()
+        .args(["info", "--json"])
+        .arg(data("degtri_sliding.off"))
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["vertices"], 8);
+    assert_eq!(v["faces"], 8);
+    assert_eq!(v["triangles"], 8);
+    assert!(v["degenerate_triangles"].as_u64().unwrap() > 0);
+    assert_eq!(v["unreferenced_vertices"], 0);
+    let bbox = v["bbox"].as_array().unwrap();
+    assert_eq!(bbox.len(), 2);
+    assert_eq!(bbox[0].as_array().unwrap().len(), 3);
+}
+
+#[test]
+fn info_quads_triangulate() {
+    let out = raymesh()
+        .args(["info", "--json"])
+        .arg(data("cube_quad.off"))
+        .output()
+        .unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(
+        (v["faces"].as_u64(), v["triangles"].as_u64()),
+        (Some(6), Some(12))
+    );
+    assert_eq!(
+        v["bbox"],
+        serde_json::json!([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+    );
+    assert_eq!(v["degenerate_triangles"], 0);
+}
+
+#[test]
+fn info_table() {
+    let out = raymesh()
+        .arg("info")
+        .arg(data("tetrahedron.off"))
+        .output()
+        .unwrap();
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(text.contains("vertices               4"), "{text}");
+    assert!(text.contains("triangles              4"), "{text}");
+}
+
+#[test]
+fn bad_input_fails_with_the_error_on_stderr() {
+    let dir = std::env::temp_dir().join(format!("raymesh-cli-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let bad = dir.join("bad.off");
+    std::fs::write(&bad, "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n").unwrap();
+    let out = raymesh()
+        .args(["info", "--json"])
+        .arg(&bad)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(out.stdout.is_empty());
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(
+        err.contains("bad.off:6: vertex index 7 out of range (3 vertices)"),
+        "{err}"
+    );
+    let out = raymesh()
+        .arg("info")
+        .arg(dir.join("missing.ply"))
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8(out.stderr)
+        .unwrap()
+        .contains("missing.ply"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -1,0 +1,466 @@
+//! PLY reader (Turk's Stanford polygon format): ascii, binary little-endian
+//! and binary big-endian. Vertices come from the `vertex` element's `x`, `y`,
+//! `z` properties (any scalar type), faces from the `face` element's
+//! `vertex_indices` (or `vertex_index`) list; other elements and properties
+//! are read past and ignored.
+
+use super::text::show;
+use crate::{ErrorKind, IndexedMesh, Location, MeshError};
+use raymesh_geometry::Vec3;
+
+/// How a PLY file stores its data.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PlyEncoding {
+    /// Whitespace-separated text.
+    Ascii,
+    /// Binary, little-endian.
+    BinaryLittleEndian,
+    /// Binary, big-endian.
+    BinaryBigEndian,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Scalar {
+    I8,
+    U8,
+    I16,
+    U16,
+    I32,
+    U32,
+    F32,
+    F64,
+}
+
+impl Scalar {
+    fn parse(name: &[u8]) -> Option<Self> {
+        Some(match name {
+            b"char" | b"int8" => Self::I8,
+            b"uchar" | b"uint8" => Self::U8,
+            b"short" | b"int16" => Self::I16,
+            b"ushort" | b"uint16" => Self::U16,
+            b"int" | b"int32" => Self::I32,
+            b"uint" | b"uint32" => Self::U32,
+            b"float" | b"float32" => Self::F32,
+            b"double" | b"float64" => Self::F64,
+            _ => return None,
+        })
+    }
+
+    fn size(self) -> usize {
+        match self {
+            Self::I8 | Self::U8 => 1,
+            Self::I16 | Self::U16 => 2,
+            Self::I32 | Self::U32 | Self::F32 => 4,
+            Self::F64 => 8,
+        }
+    }
+
+    fn is_int(self) -> bool {
+        !matches!(self, Self::F32 | Self::F64)
+    }
+}
+
+#[derive(Clone, Copy, Debug)]
+enum Prop {
+    Scalar(Scalar),
+    List(Scalar, Scalar),
+}
+
+#[derive(Debug)]
+struct Element {
+    name: Vec<u8>,
+    count: usize,
+    count_line: u64,
+    props: Vec<(Vec<u8>, Prop)>,
+}
+
+impl Element {
+    /// The fewest bytes one instance can take (binary) or tokens (ascii).
+    fn min_size(&self, binary: bool) -> usize {
+        self.props
+            .iter()
+            .map(|(_, p)| match (p, binary) {
+                (Prop::Scalar(s), true) | (Prop::List(s, _), true) => s.size(),
+                (_, false) => 1, // at least one character per value
+            })
+            .sum::<usize>()
+            .max(1)
+    }
+}
+
+/// Where the data values come from.
+trait Source {
+    fn scalar(&mut self, ty: Scalar) -> Result<f64, MeshError>;
+    fn location(&self) -> Location;
+    fn err(&self, kind: ErrorKind) -> MeshError {
+        MeshError::new(self.location(), kind)
+    }
+}
+
+struct Ascii<'a> {
+    bytes: &'a [u8],
+    pos: usize,
+    line: u64,
+}
+
+impl Source for Ascii<'_> {
+    fn scalar(&mut self, ty: Scalar) -> Result<f64, MeshError> {
+        while self.pos < self.bytes.len() && self.bytes[self.pos].is_ascii_whitespace() {
+            if self.bytes[self.pos] == b'\n' {
+                self.line += 1;
+            }
+            self.pos += 1;
+        }
+        let start = self.pos;
+        while self.pos < self.bytes.len() && !self.bytes[self.pos].is_ascii_whitespace() {
+            self.pos += 1;
+        }
+        let tok = &self.bytes[start..self.pos];
+        if tok.is_empty() {
+            return Err(self.err(ErrorKind::Truncated("the data ends early".into())));
+        }
+        let v = std::str::from_utf8(tok)
+            .ok()
+            .and_then(|s| s.parse::<f64>().ok())
+            .ok_or_else(|| {
+                self.err(ErrorKind::Syntax(format!(
+                    "expected a number, found '{}'",
+                    show(tok)
+                )))
+            })?;
+        if ty.is_int() && v.fract() != 0.0 {
+            return Err(self.err(ErrorKind::Syntax(format!(
+                "expected an integer, found '{}'",
+                show(tok)
+            ))));
+        }
+        Ok(v)
+    }
+
+    /// The line of the next value (whitespace ahead is skipped in thought).
+    fn location(&self) -> Location {
+        let ahead = &self.bytes[self.pos..];
+        let ws = ahead.iter().take_while(|b| b.is_ascii_whitespace());
+        Location::Line(self.line + ws.filter(|&&b| b == b'\n').count() as u64)
+    }
+}
+
+struct Binary<'a> {
+    bytes: &'a [u8],
+    pos: usize,
+    big_endian: bool,
+}
+
+impl Source for Binary<'_> {
+    fn scalar(&mut self, ty: Scalar) -> Result<f64, MeshError> {
+        let n = ty.size();
+        let Some(b) = self.bytes.get(self.pos..self.pos + n) else {
+            return Err(self.err(ErrorKind::Truncated(format!(
+                "need {n} more bytes, the file has {}",
+                self.bytes.len() - self.pos
+            ))));
+        };
+        let mut a = [0u8; 8];
+        a[..n].copy_from_slice(b);
+        if self.big_endian {
+            a[..n].reverse();
+        }
+        self.pos += n;
+        Ok(match ty {
+            Scalar::I8 => a[0] as i8 as f64,
+            Scalar::U8 => a[0] as f64,
+            Scalar::I16 => i16::from_le_bytes([a[0], a[1]]) as f64,
+            Scalar::U16 => u16::from_le_bytes([a[0], a[1]]) as f64,
+            Scalar::I32 => i32::from_le_bytes([a[0], a[1], a[2], a[3]]) as f64,
+            Scalar::U32 => u32::from_le_bytes([a[0], a[1], a[2], a[3]]) as f64,
+            Scalar::F32 => f32::from_le_bytes([a[0], a[1], a[2], a[3]]) as f64,
+            Scalar::F64 => f64::from_le_bytes(a),
+        })
+    }
+
+    fn location(&self) -> Location {
+        Location::Byte(self.pos as u64)
+    }
+}
+
+struct Header {
+    encoding: PlyEncoding,
+    elements: Vec<Element>,
+    /// Byte offset where the data starts, and its line number.
+    data_start: usize,
+    data_line: u64,
+}
+
+fn header_err(line: u64, msg: impl Into<String>) -> MeshError {
+    MeshError::at_line(line, ErrorKind::Syntax(msg.into()))
+}
+
+fn parse_header(bytes: &[u8]) -> Result<Header, MeshError> {
+    let mut pos = 0usize;
+    let mut line = 0u64;
+    let mut encoding = None;
+    let mut elements: Vec<Element> = Vec::new();
+    loop {
+        if pos >= bytes.len() {
+            return Err(MeshError::at_line(
+                line,
+                ErrorKind::Truncated("no 'end_header'".into()),
+            ));
+        }
+        let end = bytes[pos..]
+            .iter()
+            .position(|&b| b == b'\n')
+            .map_or(bytes.len(), |i| pos + i);
+        let raw = &bytes[pos..end];
+        let l = raw.strip_suffix(b"\r").unwrap_or(raw);
+        pos = (end + 1).min(bytes.len());
+        line += 1;
+        let toks: Vec<&[u8]> = super::text::tokens(l).collect();
+        if line == 1 {
+            if toks.first() != Some(&&b"ply"[..]) {
+                return Err(header_err(1, "expected 'ply'"));
+            }
+            continue;
+        }
+        match toks.first().copied() {
+            Some(b"format") => {
+                encoding = Some(match toks.get(1).copied() {
+                    Some(b"ascii") => PlyEncoding::Ascii,
+                    Some(b"binary_little_endian") => PlyEncoding::BinaryLittleEndian,
+                    Some(b"binary_big_endian") => PlyEncoding::BinaryBigEndian,
+                    other => {
+                        return Err(header_err(
+                            line,
+                            format!("unknown format '{}'", show(other.unwrap_or_default())),
+                        ))
+                    }
+                });
+            }
+            Some(b"comment") | Some(b"obj_info") | None => {}
+            Some(b"element") => {
+                let (Some(name), Some(count)) = (toks.get(1), toks.get(2)) else {
+                    return Err(header_err(line, "expected 'element NAME COUNT'"));
+                };
+                let count = super::text::parse_int(count, line, "an element count")?;
+                if count < 0 || count > u32::MAX as i64 - 1 {
+                    return Err(MeshError::at_line(
+                        line,
+                        ErrorKind::TooLarge(format!("element count {count}")),
+                    ));
+                }
+                elements.push(Element {
+                    name: name.to_vec(),
+                    count: count as usize,
+                    count_line: line,
+                    props: Vec::new(),
+                });
+            }
+            Some(b"property") => {
+                let Some(el) = elements.last_mut() else {
+                    return Err(header_err(line, "'property' before any 'element'"));
+                };
+                let ty = |t: Option<&&[u8]>| {
+                    t.and_then(|t| Scalar::parse(t)).ok_or_else(|| {
+                        header_err(
+                            line,
+                            format!(
+                                "unknown property type '{}'",
+                                show(t.copied().unwrap_or_default())
+                            ),
+                        )
+                    })
+                };
+                let prop = if toks.get(1) == Some(&&b"list"[..]) {
+                    let count_ty = ty(toks.get(2))?;
+                    if !count_ty.is_int() {
+                        return Err(header_err(line, "a list count must be an integer type"));
+                    }
+                    (toks.get(4), Prop::List(count_ty, ty(toks.get(3))?))
+                } else {
+                    (toks.get(2), Prop::Scalar(ty(toks.get(1))?))
+                };
+                let name = prop
+                    .0
+                    .ok_or_else(|| header_err(line, "property without a name"))?;
+                el.props.push((name.to_vec(), prop.1));
+            }
+            Some(b"end_header") => break,
+            Some(other) => {
+                return Err(header_err(
+                    line,
+                    format!("unknown header line '{}'", show(other)),
+                ));
+            }
+        }
+    }
+    let encoding = encoding.ok_or_else(|| header_err(2, "no 'format' line"))?;
+    Ok(Header {
+        encoding,
+        elements,
+        data_start: pos,
+        data_line: line + 1,
+    })
+}
+
+pub(super) fn read(bytes: &[u8]) -> Result<IndexedMesh, MeshError> {
+    let h = parse_header(bytes)?;
+    let data = &bytes[h.data_start..];
+    let binary = h.encoding != PlyEncoding::Ascii;
+    // Counts must be backed by bytes before anything is allocated for them.
+    let mut need: u128 = 0;
+    for el in &h.elements {
+        need += el.count as u128 * el.min_size(binary) as u128;
+        if need > data.len() as u128 {
+            return Err(MeshError::at_line(
+                el.count_line,
+                ErrorKind::TooLarge(format!(
+                    "{} '{}' elements cannot fit in the {} bytes of data",
+                    el.count,
+                    String::from_utf8_lossy(&el.name),
+                    data.len()
+                )),
+            ));
+        }
+    }
+    match h.encoding {
+        PlyEncoding::Ascii => read_data(
+            &h,
+            Ascii {
+                bytes,
+                pos: h.data_start,
+                line: h.data_line,
+            },
+        ),
+        e => read_data(
+            &h,
+            Binary {
+                bytes,
+                pos: h.data_start,
+                big_endian: e == PlyEncoding::BinaryBigEndian,
+            },
+        ),
+    }
+}
+
+fn read_data(h: &Header, mut src: impl Source) -> Result<IndexedMesh, MeshError> {
+    let nv = h
+        .elements
+        .iter()
+        .find(|e| e.name == b"vertex")
+        .map_or(0, |e| e.count);
+    // Counts were checked against the data size, so this reservation is bounded.
+    let mut mesh = IndexedMesh::with_capacity(nv, 0, 0);
+    let mut face = Vec::new();
+    for el in &h.elements {
+        let is_vertex = el.name == b"vertex";
+        let is_face = el.name == b"face";
+        let xyz: Vec<Option<usize>> = el
+            .props
+            .iter()
+            .map(|(n, _)| match n.as_slice() {
+                b"x" => Some(0),
+                b"y" => Some(1),
+                b"z" => Some(2),
+                _ => None,
+            })
+            .collect();
+        if is_vertex {
+            for axis in 0..3 {
+                if !xyz.contains(&Some(axis)) {
+                    return Err(MeshError::at_line(
+                        el.count_line,
+                        ErrorKind::Syntax(format!(
+                            "vertex element has no '{}' property",
+                            ["x", "y", "z"][axis]
+                        )),
+                    ));
+                }
+            }
+        }
+        let face_list = if is_face {
+            let pos = el
+                .props
+                .iter()
+                .position(|(n, p)| {
+                    matches!(p, Prop::List(..)) && (n == b"vertex_indices" || n == b"vertex_index")
+                })
+                .or_else(|| {
+                    el.props
+                        .iter()
+                        .position(|(_, p)| matches!(p, Prop::List(..)))
+                });
+            Some(pos.ok_or_else(|| {
+                MeshError::at_line(
+                    el.count_line,
+                    ErrorKind::Syntax("face element has no list property".into()),
+                )
+            })?)
+        } else {
+            None
+        };
+        if is_face {
+            mesh.reserve_faces(el.count);
+        }
+        for _ in 0..el.count {
+            let mut p = [0.0f32; 3];
+            let start = src.location();
+            for (k, (_, prop)) in el.props.iter().enumerate() {
+                match *prop {
+                    Prop::Scalar(ty) => {
+                        let v = src.scalar(ty)?;
+                        if is_vertex {
+                            if let Some(axis) = xyz[k] {
+                                let f = v as f32;
+                                if !f.is_finite() {
+                                    return Err(MeshError::new(
+                                        start,
+                                        ErrorKind::NonFinite(format!("{v}")),
+                                    ));
+                                }
+                                p[axis] = f;
+                            }
+                        }
+                    }
+                    Prop::List(cty, ity) => {
+                        let n = src.scalar(cty)?;
+                        if n < 0.0 {
+                            return Err(
+                                src.err(ErrorKind::Syntax(format!("negative list length {n}")))
+                            );
+                        }
+                        let n = n as usize;
+                        let wanted = face_list == Some(k);
+                        if wanted {
+                            if n < 3 {
+                                return Err(MeshError::new(start, ErrorKind::FaceTooSmall(n)));
+                            }
+                            face.clear();
+                        }
+                        for _ in 0..n {
+                            let i = src.scalar(ity)?;
+                            if wanted {
+                                if !(i >= 0.0 && (i as usize) < nv) {
+                                    return Err(MeshError::new(
+                                        start,
+                                        ErrorKind::IndexOutOfRange {
+                                            index: i as i64,
+                                            vertices: nv,
+                                        },
+                                    ));
+                                }
+                                face.push(i as u32);
+                            }
+                        }
+                    }
+                }
+            }
+            if is_vertex {
+                mesh.positions.push(Vec3::from_array(p));
+            }
+            if face_list.is_some() {
+                mesh.push_face_unchecked(&face);
+            }
+        }
+    }
+    Ok(mesh)
+}

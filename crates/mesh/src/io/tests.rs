@@ -1,0 +1,435 @@
+//! Reader and writer tests: round trips, errors with locations, fuzzing.
+
+use super::*;
+use crate::{ErrorKind, IndexedMesh, Location};
+use proptest::prelude::*;
+use raymesh_geometry::Vec3;
+use std::path::PathBuf;
+
+fn data(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../tests/data")
+        .join(name)
+}
+
+fn sample() -> IndexedMesh {
+    let p = vec![
+        Vec3::new(0.0, 0.0, 0.0),
+        Vec3::new(1.5, -0.0, 0.1),
+        Vec3::new(0.3, 2.25, 1e-7),
+        Vec3::new(-1e6, 3.0, 7.125),
+        Vec3::new(0.1, 0.2, 0.3),
+    ];
+    IndexedMesh::from_polygons(p, [&[0u32, 1, 2][..], &[0, 2, 3, 4], &[4, 3, 1]]).unwrap()
+}
+
+fn err(bytes: &[u8], f: Format) -> crate::MeshError {
+    read_bytes(bytes, f).expect_err("expected an error")
+}
+
+/// A binary STL of the given triangles.
+fn stl_binary(tris: &[[Vec3; 3]]) -> Vec<u8> {
+    let mut b = vec![b' '; 80];
+    b.extend_from_slice(&(tris.len() as u32).to_le_bytes());
+    for t in tris {
+        b.extend_from_slice(&[0u8; 12]);
+        for p in t {
+            for c in p.to_array() {
+                b.extend_from_slice(&c.to_le_bytes());
+            }
+        }
+        b.extend_from_slice(&[0u8; 2]);
+    }
+    b
+}
+
+#[test]
+fn round_trips_keep_every_bit() {
+    let m = sample();
+    let mut obj = Vec::new();
+    write_obj(&mut obj, &m).unwrap();
+    assert_eq!(read_bytes(&obj, Format::Obj).unwrap(), m);
+    let mut off = Vec::new();
+    write_off(&mut off, &m).unwrap();
+    assert_eq!(read_bytes(&off, Format::Off).unwrap(), m);
+    for enc in [
+        PlyEncoding::Ascii,
+        PlyEncoding::BinaryLittleEndian,
+        PlyEncoding::BinaryBigEndian,
+    ] {
+        let mut ply = Vec::new();
+        write_ply(&mut ply, &m, enc).unwrap();
+        assert_eq!(read_bytes(&ply, Format::Ply).unwrap(), m, "{enc:?}");
+    }
+}
+
+#[test]
+fn write_mesh_by_extension_and_read_back() {
+    let dir = std::env::temp_dir().join(format!("raymesh-io-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    for ext in ["obj", "off", "ply"] {
+        let path = dir.join(format!("m.{ext}"));
+        write_mesh(&path, &sample()).unwrap();
+        assert_eq!(read_mesh(&path).unwrap(), sample());
+    }
+    assert!(write_mesh(dir.join("m.stl"), &sample()).is_err());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn stl_binary_and_ascii_weld_corners() {
+    let (a, b, c, d) = (Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z);
+    let tris = [[a, c, b], [a, b, d], [a, d, c], [b, c, d]];
+    let m = read_bytes(&stl_binary(&tris), Format::Stl).unwrap();
+    assert_eq!((m.num_vertices(), m.num_faces()), (4, 4));
+    let mut ascii = String::from("solid t\n");
+    for t in &tris {
+        ascii += "  facet normal 0 0 0\n    outer loop\n";
+        for p in t {
+            ascii += &format!("      vertex {} {} {}\n", p.x, p.y, p.z);
+        }
+        ascii += "    endloop\n  endfacet\n";
+    }
+    ascii += "endsolid t\n";
+    let m2 = read_bytes(ascii.as_bytes(), Format::Stl).unwrap();
+    assert_eq!(m, m2);
+    // -0.0 and 0.0 weld.
+    let m3 = read_bytes(
+        &stl_binary(&[[a, b, c], [Vec3::new(-0.0, 0.0, 0.0), c, d]]),
+        Format::Stl,
+    )
+    .unwrap();
+    assert_eq!(m3.num_vertices(), 4);
+}
+
+#[test]
+fn obj_features() {
+    let src = b"# comment\nmtllib x.mtl\no thing\nv 0 0 0\nv 1 0 0 1\nv 0 1 0 0.5 0.5 0.5\nvt 0 0\nvn 0 0 1\n\
+                g grp\nusemtl m\ns off\nf 1/1/1 2/1/1 3/1/1\nf -3//1 -2//1 -1//1\nf 1 2 \\\n 3\nl 1 2\n";
+    let m = read_bytes(src, Format::Obj).unwrap();
+    assert_eq!(m.num_vertices(), 3);
+    assert_eq!(m.num_faces(), 3);
+    assert!(m.faces().all(|f| f == [0, 1, 2]));
+    // Forward references resolve once the file is read.
+    let m = read_bytes(b"f 1 2 3\nv 0 0 0\nv 1 0 0\nv 0 1 0\n", Format::Obj).unwrap();
+    assert_eq!(m.num_faces(), 1);
+}
+
+#[test]
+fn off_features() {
+    let m = read_bytes(
+        b"OFF 3 1 0\n# c\n0 0 0\n1 0 0 # c\n0 1 0\n\n3 0 1 2 255 0 0\n",
+        Format::Off,
+    )
+    .unwrap();
+    assert_eq!((m.num_vertices(), m.num_faces()), (3, 1));
+    let m = read_bytes(
+        b"COFF\n3 1 3\n0 0 0 1 1 1 1\n1 0 0 1 1 1 1\n0 1 0 1 1 1 1\n3 0 1 2\n",
+        Format::Off,
+    )
+    .unwrap();
+    assert_eq!(m.num_faces(), 1);
+}
+
+/// Each malformed input gives the right error at the right place.
+#[test]
+fn errors_name_what_and_where() {
+    let cases: Vec<(&[u8], Format, Location, &str)> = vec![
+        (b"OFF\n3 1 0\n0 0 0\n1 0 0\n", Format::Off, Location::Line(4), "expected 3 vertices, found 2"),
+        (b"OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 3\n", Format::Off, Location::Line(6), "vertex index 3 out of range"),
+        (b"OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n2 0 1\n", Format::Off, Location::Line(6), "face with 2 vertices"),
+        (b"OFF\n3 1 0\n0 0 0\n1 nan 0\n0 1 0\n3 0 1 2\n", Format::Off, Location::Line(4), "non-finite"),
+        (b"OFF\n3 1 0\n0 0 0\n1 inf 0\n0 1 0\n3 0 1 2\n", Format::Off, Location::Line(4), "non-finite"),
+        (b"OFF\n3 1 0\n0 0 0\n1 1e39 0\n0 1 0\n3 0 1 2\n", Format::Off, Location::Line(4), "non-finite"),
+        (b"OFF\n3 1000000000000 0\n0 0 0\n", Format::Off, Location::Line(2), "cannot fit"),
+        (b"OFF\n3 1 0\n0 0 0\n1 0 x\n", Format::Off, Location::Line(4), "expected a number, found 'x'"),
+        (b"OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n4 0 1 2\n", Format::Off, Location::Line(6), "announces 4 vertices, found 3"),
+        (b"4OFF\n", Format::Off, Location::Line(1), "unsupported"),
+        (b"OOF\n", Format::Off, Location::Line(1), "expected 'OFF'"),
+        (b"v 0 0 0\nv 1 0 0\nf 1 2 3\n", Format::Obj, Location::Line(3), "vertex index 3 out of range"),
+        (b"v 0 0 0\nv 1 0 0\nf 1 2 -3\n", Format::Obj, Location::Line(3), "vertex index -3 out of range"),
+        (b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", Format::Obj, Location::Line(4), "index 0"),
+        (b"v 0 0 0\nv 1 0 0\nf 1 2\n", Format::Obj, Location::Line(3), "face with 2 vertices"),
+        (b"v 0 0\n", Format::Obj, Location::Line(1), "expected 3 coordinates, found 2"),
+        (b"v 0 0 NaN\n", Format::Obj, Location::Line(1), "non-finite"),
+        (b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 5\n",
+            Format::Ply, Location::Line(13), "vertex index 5 out of range"),
+        (b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n0 0 0\n1 0 0\n",
+            Format::Ply, Location::Line(10), "truncated"),
+        (b"ply\nformat ascii 1.0\nelement vertex 1000000000000\nproperty float x\nend_header\n0\n", Format::Ply, Location::Line(3), "element count"),
+        (b"ply\nformat ascii 1.0\nelement vertex 100000\nproperty float x\nproperty float y\nproperty float z\nend_header\n0 0 0\n", Format::Ply, Location::Line(3), "cannot fit"),
+        (b"ply\nformat binary_little_endian 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\nend_header\n\0\0\0\0\0\0\0\0\0\0\0\0\0\0\0\0\0\0\0\0\0\0\0",
+            Format::Ply, Location::Line(3), "cannot fit"),
+        (b"ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n\0\0\0\0\0\0\0\0\0\0\0\0\x03\0\0\0\0",
+            Format::Ply, Location::Byte(186), "need 4 more bytes"),
+        (b"ply\nformat ascii 2.0x\n", Format::Ply, Location::Line(2), "no 'end_header'"),
+        (b"ply\nformat foo 1.0\nend_header\n", Format::Ply, Location::Line(2), "unknown format 'foo'"),
+        (b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nend_header\n0\n", Format::Ply, Location::Line(3), "no 'y' property"),
+        (b"ply\nformat ascii 1.0\nelement vertex 1\nproperty flot x\nend_header\n", Format::Ply, Location::Line(4), "unknown property type 'flot'"),
+        (b"solid x\nfacet normal 0 0 0\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nendloop\n", Format::Stl, Location::Line(6), "face with 2 vertices"),
+        (b"solid x\nfacet normal 0 0 0\nouter loop\nvertex 0 0 0\n", Format::Stl, Location::Line(5), "not closed"),
+        (b"solid x\nbanana\n", Format::Stl, Location::Line(2), "unexpected 'banana'"),
+        (b"\0\0\0\0", Format::Stl, Location::Byte(4), "84-byte header"),
+        (b"   \n\t", Format::Obj, Location::File, "empty"),
+    ];
+    for (bytes, f, loc, msg) in cases {
+        let e = err(bytes, f);
+        let text = e.to_string();
+        assert_eq!(
+            e.location,
+            loc,
+            "{text} for {:?}",
+            String::from_utf8_lossy(bytes)
+        );
+        assert!(text.contains(msg), "'{text}' lacks '{msg}'");
+    }
+    // A binary STL whose count disagrees with its size.
+    let mut b = stl_binary(&[[Vec3::ZERO, Vec3::X, Vec3::Y]]);
+    b.truncate(b.len() - 1);
+    let e = err(&b, Format::Stl);
+    assert!(e.to_string().contains("announces 1 triangles"), "{e}");
+    let mut b = stl_binary(&[[Vec3::ZERO, Vec3::X, Vec3::new(f32::NAN, 0.0, 0.0)]]);
+    b[80] = 1;
+    assert!(matches!(err(&b, Format::Stl).kind, ErrorKind::NonFinite(_)));
+}
+
+#[test]
+fn read_mesh_names_the_file() {
+    let e = read_mesh(data("does-not-exist.off")).unwrap_err();
+    assert!(
+        e.to_string().contains("does-not-exist.off: cannot read"),
+        "{e}"
+    );
+    let dir = std::env::temp_dir().join(format!("raymesh-err-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let p = dir.join("bad.off");
+    std::fs::write(&p, b"OFF\n3 1 0\n0 0 0\n").unwrap();
+    let e = read_mesh(&p).unwrap_err();
+    assert!(
+        e.to_string()
+            .starts_with(&format!("{}:3: truncated", p.display())),
+        "{e}"
+    );
+    let p = dir.join("thing.xyz");
+    std::fs::write(&p, b"hello").unwrap();
+    let e = read_mesh(&p).unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("unknown mesh format (extension .xyz)"),
+        "{e}"
+    );
+    let p = dir.join("sniffed");
+    std::fs::write(&p, b"OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n").unwrap();
+    assert_eq!(read_mesh(&p).unwrap().num_faces(), 1);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Every fixture in the repository loads with the counts its header gives.
+#[test]
+fn fixtures_load_with_header_counts() {
+    for (name, v, f) in [
+        ("tetrahedron.off", 4, 4),
+        ("cube_quad.off", 8, 6),
+        ("degtri_sliding.off", 8, 8),
+        ("mesh_with_border.off", 548, 1014),
+        ("double-torus-example.off", 231, 220),
+        ("elephant-with-holes.off", 2798, 4463),
+        ("sphere.ply", 162, 320),
+    ] {
+        let m = read_mesh(data(name)).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!((m.num_vertices(), m.num_faces()), (v, f), "{name}");
+    }
+    let m = read_mesh(data("cube_quad.off")).unwrap();
+    assert_eq!(m.num_triangles(), 12);
+}
+
+/// The real meshes of `../shared/meshes`, when that folder is there (it is in CI).
+#[test]
+fn shared_meshes_load_with_header_counts() {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/meshes");
+    if !dir.is_dir() {
+        eprintln!("skipping: {} not found", dir.display());
+        return;
+    }
+    let mut seen = 0;
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        let Some(fmt) = Format::from_extension(&path) else {
+            continue;
+        };
+        let m = read_mesh(&path).unwrap_or_else(|e| panic!("{e}"));
+        let bytes = std::fs::read(&path).unwrap();
+        let expected: Option<(usize, usize)> = match fmt {
+            Format::Off => {
+                let text = String::from_utf8_lossy(&bytes);
+                let mut toks = text.split_whitespace().skip(1);
+                Some((
+                    toks.next().unwrap().parse().unwrap(),
+                    toks.next().unwrap().parse().unwrap(),
+                ))
+            }
+            Format::Ply => {
+                let text = String::from_utf8_lossy(&bytes[..bytes.len().min(2000)]);
+                let count = |el: &str| {
+                    text.lines()
+                        .find_map(|l| l.strip_prefix(&format!("element {el} ")))
+                        .map(|c| c.trim().parse().unwrap())
+                        .unwrap_or(0)
+                };
+                Some((count("vertex"), count("face")))
+            }
+            Format::Stl => Some((
+                m.num_vertices(),
+                u32::from_le_bytes(bytes[80..84].try_into().unwrap()) as usize,
+            )),
+            Format::Obj => None,
+        };
+        if let Some((v, f)) = expected {
+            assert_eq!(
+                (m.num_vertices(), m.num_faces()),
+                (v, f),
+                "{}",
+                path.display()
+            );
+        }
+        seen += 1;
+    }
+    assert!(seen >= 10, "only {seen} meshes found");
+}
+
+/// Valid files of every format, to mutate.
+fn seeds() -> Vec<(Vec<u8>, Format)> {
+    let m = sample();
+    let mut out = Vec::new();
+    let mut b = Vec::new();
+    write_obj(&mut b, &m).unwrap();
+    out.push((b, Format::Obj));
+    let mut b = Vec::new();
+    write_off(&mut b, &m).unwrap();
+    out.push((b, Format::Off));
+    for enc in [
+        PlyEncoding::Ascii,
+        PlyEncoding::BinaryLittleEndian,
+        PlyEncoding::BinaryBigEndian,
+    ] {
+        let mut b = Vec::new();
+        write_ply(&mut b, &m, enc).unwrap();
+        out.push((b, Format::Ply));
+    }
+    out.push((
+        stl_binary(&[[Vec3::ZERO, Vec3::X, Vec3::Y], [Vec3::X, Vec3::Y, Vec3::Z]]),
+        Format::Stl,
+    ));
+    out.push((std::fs::read(data("sphere.ply")).unwrap(), Format::Ply));
+    out.push((std::fs::read(data("cube_quad.off")).unwrap(), Format::Off));
+    out
+}
+
+/// Replays the inputs that once made a reader fail (kept in tests/data/fuzz).
+#[test]
+fn fuzz_regressions() {
+    let dir = data("fuzz");
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        let bytes = std::fs::read(&path).unwrap();
+        for f in [Format::Obj, Format::Off, Format::Ply, Format::Stl] {
+            let _ = read_bytes(&bytes, f);
+        }
+    }
+}
+
+/// Number of fuzz cases; raise with `RAYMESH_FUZZ_CASES` for a long run.
+fn fuzz_cases() -> u32 {
+    std::env::var("RAYMESH_FUZZ_CASES")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(3000)
+}
+
+/// A mutation of a byte string: flip, insert, delete, truncate, or splice a token.
+#[derive(Clone, Debug)]
+enum Mutation {
+    Set(usize, u8),
+    Insert(usize, Vec<u8>),
+    Delete(usize, usize),
+    Truncate(usize),
+}
+
+fn mutation() -> impl Strategy<Value = Mutation> {
+    let tokens = prop_oneof![
+        Just(b"-1".to_vec()),
+        Just(b"4294967295".to_vec()),
+        Just(b"99999999999999".to_vec()),
+        Just(b"nan".to_vec()),
+        Just(b"inf".to_vec()),
+        Just(b"\n".to_vec()),
+        Just(b" ".to_vec()),
+        Just(b"end_header\n".to_vec()),
+        Just(b"element face 5\n".to_vec()),
+        Just(b"property list uchar int x\n".to_vec()),
+        Just(vec![0xff, 0xff, 0xff, 0x7f]),
+        Just(b"f 1 2\n".to_vec()),
+        proptest::collection::vec(any::<u8>(), 1..8),
+    ];
+    prop_oneof![
+        (any::<usize>(), any::<u8>()).prop_map(|(i, b)| Mutation::Set(i, b)),
+        (any::<usize>(), tokens).prop_map(|(i, t)| Mutation::Insert(i, t)),
+        (any::<usize>(), 1usize..16).prop_map(|(i, n)| Mutation::Delete(i, n)),
+        any::<usize>().prop_map(Mutation::Truncate),
+    ]
+}
+
+fn apply(bytes: &mut Vec<u8>, m: &Mutation) {
+    let len = bytes.len().max(1);
+    match m {
+        Mutation::Set(i, b) => {
+            if !bytes.is_empty() {
+                let i = i % bytes.len();
+                bytes[i] = *b;
+            }
+        }
+        Mutation::Insert(i, t) => {
+            let i = i % (bytes.len() + 1);
+            bytes.splice(i..i, t.iter().copied());
+        }
+        Mutation::Delete(i, n) => {
+            let i = i % len;
+            let end = (i + n).min(bytes.len());
+            if i < end {
+                bytes.drain(i..end);
+            }
+        }
+        Mutation::Truncate(i) => bytes.truncate(i % len),
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: fuzz_cases(), failure_persistence: None, ..ProptestConfig::default() })]
+
+    /// Random bytes never make any reader panic.
+    #[test]
+    fn fuzz_random_bytes(bytes in proptest::collection::vec(any::<u8>(), 0..600), f in 0usize..4) {
+        let format = [Format::Obj, Format::Off, Format::Ply, Format::Stl][f];
+        let _ = read_bytes(&bytes, format);
+        let _ = Format::sniff(&bytes);
+    }
+
+    /// Mutated valid files never make a reader panic, and whatever they
+    /// return is a valid mesh (every index in range, every face of 3+).
+    #[test]
+    fn fuzz_mutated_files(seed in 0usize..9, muts in proptest::collection::vec(mutation(), 1..6)) {
+        let seeds = seeds();
+        let (mut bytes, format) = seeds[seed % seeds.len()].clone();
+        for m in &muts {
+            apply(&mut bytes, m);
+        }
+        if let Ok(mesh) = read_bytes(&bytes, format) {
+            let nv = mesh.num_vertices();
+            for f in mesh.faces() {
+                prop_assert!(f.len() >= 3);
+                prop_assert!(f.iter().all(|&i| (i as usize) < nv));
+            }
+            prop_assert!(mesh.positions.iter().all(|p| p.is_finite()));
+        }
+    }
+}
