@@ -1,1 +1,41 @@
-//! Acceleration structures for ray queries. Empty for now: the structures land with the acceleration-structures issue.
+//! Acceleration structures for ray queries, interchangeable behind one small
+//! interface and exact: each returns what brute force returns.
+//!
+//! - [`Primitives`] is what a structure indexes: anything with per-primitive
+//!   bounds and a ray test (triangles, spheres, a mix of both).
+//! - [`Accel`] is the structure, chosen by [`AccelKind`] in one factory,
+//!   [`Accel::build`]. Structures never see primitives while traversing:
+//!   builders get boxes and centroids, traversals call a leaf closure.
+//! - [`Scene`] ties primitives and a structure together and answers the
+//!   [`Surface`] questions: bounds, closest hit, any hit.
+//!
+//! Exactness: the closest hit is the least `(t, prim)` pair, and every
+//! structure culls a node only when its entry distance is strictly beyond
+//! the best `t` found, so ties resolve the same way everywhere and the
+//! result is bit-identical to brute force.
+
+mod accel;
+mod brute;
+pub mod bvh;
+mod grid;
+mod instance;
+mod kdtree;
+mod prims;
+mod scene;
+mod stats;
+
+pub use accel::{Accel, AccelKind, BuildConfig};
+pub use brute::{BoundedList, BruteForce};
+pub use bvh::{Bvh, BvhBuilder};
+pub use grid::Grid;
+pub use instance::{Instance, Instances};
+pub use kdtree::KdTree;
+pub use prims::{PrimHit, Primitives, Shape, Shapes, Spheres, TriangleMesh};
+pub use raymesh_geometry::{Aabb, Ray, Vec3};
+pub use scene::{Hit, Scene, Surface};
+pub use stats::{AccelStats, CountStats, NoStats, RayCounter};
+
+/// Leaf callback of a traversal: tests primitive `prim` and returns the
+/// ray's new upper bound (the best hit's `t`, or `-inf` to stop at once).
+pub(crate) trait Leaf: FnMut(u32) -> f32 {}
+impl<F: FnMut(u32) -> f32> Leaf for F {}

@@ -23,6 +23,19 @@ impl Default for Aabb {
 /// conservative under rounding (Ize, "Robust BVH Ray Traversal", JCGT 2013).
 const ROBUST_EXIT: f32 = 1.0 + 2.0 * gamma(3);
 
+/// Relative slack added to a ray's upper bound before it culls boxes.
+const CULL_SLACK: f32 = 1e-5;
+
+/// The bound a traversal culls boxes against, given the best hit's `t`:
+/// a few ulps above it, because a primitive's `t` and its box's entry are
+/// rounded independently, and a box whose entry rounds just above a tied
+/// hit must still be visited for the tie to resolve exactly.
+#[inline(always)]
+#[must_use]
+pub fn cull_bound(t: f32) -> f32 {
+    t + t.abs() * CULL_SLACK
+}
+
 impl Aabb {
     /// The empty box, identity of `union`.
     pub const EMPTY: Self = Self {
@@ -156,7 +169,8 @@ impl Aabb {
     }
 
     /// Slab test (Kay & Kajiya 1986): the entry and exit distances of the ray
-    /// within `[ray.tmin, min(tmax, ray.tmax)]`, or `None` when it misses.
+    /// within `[ray.tmin, min(tmax, ray.tmax)]` (the bound padded by
+    /// [`cull_bound`]), or `None` when it misses.
     ///
     /// Directions with a zero component give `±inf` reciprocals, so the slab
     /// of that axis yields `±inf` (no constraint) when the origin is inside it
@@ -170,7 +184,7 @@ impl Aabb {
     #[inline]
     #[must_use]
     pub fn intersect_ray(&self, ray: &Ray, tmax: f32) -> Option<(f32, f32)> {
-        let tmax = tmax.min(ray.tmax());
+        let tmax = cull_bound(tmax.min(ray.tmax()));
         let (t0, t1) = self.slab(ray.origin(), ray.inv_dir(), ray.octant(), ray.tmin(), tmax);
         (t0 <= t1).then_some((t0, t1))
     }

@@ -13,9 +13,9 @@ mod ray;
 mod sphere;
 mod triangle;
 
-pub use aabb::Aabb;
+pub use aabb::{cull_bound, Aabb};
 pub use float::{gamma, next_down, next_up};
-pub use glam::{Mat3, Mat4, Vec2, Vec3};
+pub use glam::{Mat3, Mat4, Quat, Vec2, Vec3};
 pub use ray::Ray;
 pub use sphere::{intersect_sphere, Sphere, SphereHit};
 pub use triangle::{intersect_triangle, triangle_area2, TriHit, Triangle};

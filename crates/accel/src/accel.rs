@@ -1,0 +1,198 @@
+//! The one factory: a structure chosen by name, behind one enum.
+
+use crate::{
+    bvh::BvhBuilder, AccelStats, BoundedList, BruteForce, Bvh, Grid, KdTree, Leaf, RayCounter,
+};
+use raymesh_geometry::{Aabb, Ray};
+use std::fmt;
+use std::str::FromStr;
+
+/// Which structure to build.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum AccelKind {
+    /// Every primitive tested in order (the lecture's TriangleMesh loop).
+    Brute,
+    /// One box around everything, tested first (the lecture's BoundedSurface).
+    Aabb,
+    /// BVH split at the object median on rotating axes (the lecture's builder).
+    BvhMedian,
+    /// BVH by binned SAH (Wald 2007).
+    BvhBinned,
+    /// BVH by full-sweep SAH (MacDonald & Booth 1990).
+    BvhSweep,
+    /// Uniform grid with 3D-DDA traversal (Amanatides & Woo 1987).
+    Grid,
+    /// k-d tree by binned SAH with empty-space cut-off (Wald & Havran 2006).
+    KdTree,
+}
+
+impl AccelKind {
+    /// Every kind, in the order tools list them.
+    pub const ALL: [AccelKind; 7] = [
+        Self::Brute,
+        Self::Aabb,
+        Self::BvhMedian,
+        Self::BvhBinned,
+        Self::BvhSweep,
+        Self::Grid,
+        Self::KdTree,
+    ];
+
+    /// What `bvh` names: our fastest BVH for ray queries (see the README's
+    /// measurements; sweep SAH gives the lowest SAH cost and the most Mrays/s).
+    pub const FASTEST_BVH: AccelKind = Self::BvhSweep;
+
+    /// The name tools use (`--accel NAME`).
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Brute => "brute",
+            Self::Aabb => "aabb",
+            Self::BvhMedian => "bvh-median",
+            Self::BvhBinned => "bvh-binned",
+            Self::BvhSweep => "bvh-sweep",
+            Self::Grid => "grid",
+            Self::KdTree => "kdtree",
+        }
+    }
+}
+
+impl fmt::Display for AccelKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for AccelKind {
+    type Err = String;
+
+    /// Parses a name; `bvh` means [`AccelKind::FASTEST_BVH`].
+    fn from_str(s: &str) -> Result<Self, String> {
+        if s == "bvh" {
+            return Ok(Self::FASTEST_BVH);
+        }
+        Self::ALL
+            .into_iter()
+            .find(|k| k.name() == s)
+            .ok_or_else(|| {
+                let names: Vec<_> = Self::ALL.iter().map(|k| k.name()).collect();
+                format!(
+                    "unknown structure '{s}'; expected bvh, {}",
+                    names.join(", ")
+                )
+            })
+    }
+}
+
+/// Build settings shared by the structures; each field says what it trades.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BuildConfig {
+    /// Most primitives a BVH or k-d leaf may hold. Larger leaves make
+    /// shallower, smaller trees at the price of more primitive tests.
+    pub max_leaf: usize,
+    /// Cost of one traversal step relative to one primitive test, for SAH
+    /// builders. Higher values make leaves larger.
+    pub traversal_cost: f32,
+    /// Grid cells per primitive (λ in Cleary & Wyvill's `λ N` rule). More cells
+    /// mean fewer tests per cell and more cells stepped through per ray.
+    pub grid_density: f32,
+    /// Bins per axis of the binned SAH builders. More bins find better splits
+    /// for a slower build.
+    pub bins: usize,
+}
+
+impl Default for BuildConfig {
+    fn default() -> Self {
+        Self {
+            max_leaf: 8,
+            traversal_cost: 1.0,
+            grid_density: 3.0,
+            bins: 32,
+        }
+    }
+}
+
+/// A built acceleration structure.
+#[derive(Clone, Debug)]
+pub enum Accel {
+    /// See [`BruteForce`].
+    Brute(BruteForce),
+    /// See [`BoundedList`].
+    Aabb(BoundedList),
+    /// See [`Bvh`]; the kind says which builder made it.
+    Bvh(Bvh, AccelKind),
+    /// See [`Grid`].
+    Grid(Grid),
+    /// See [`KdTree`].
+    KdTree(KdTree),
+}
+
+impl Accel {
+    /// Builds the structure of the given kind over primitives' boxes.
+    #[must_use]
+    pub fn build(kind: AccelKind, boxes: &[Aabb], config: &BuildConfig) -> Self {
+        match kind {
+            AccelKind::Brute => Self::Brute(BruteForce::new(boxes)),
+            AccelKind::Aabb => Self::Aabb(BoundedList::new(boxes)),
+            AccelKind::BvhMedian => Self::Bvh(BvhBuilder::Median.build(boxes, config), kind),
+            AccelKind::BvhBinned => Self::Bvh(BvhBuilder::BinnedSah.build(boxes, config), kind),
+            AccelKind::BvhSweep => Self::Bvh(BvhBuilder::SweepSah.build(boxes, config), kind),
+            AccelKind::Grid => Self::Grid(Grid::build(boxes, config)),
+            AccelKind::KdTree => Self::KdTree(KdTree::build(boxes, config)),
+        }
+    }
+
+    /// Which kind this is.
+    #[must_use]
+    pub fn kind(&self) -> AccelKind {
+        match self {
+            Self::Brute(_) => AccelKind::Brute,
+            Self::Aabb(_) => AccelKind::Aabb,
+            Self::Bvh(_, k) => *k,
+            Self::Grid(_) => AccelKind::Grid,
+            Self::KdTree(_) => AccelKind::KdTree,
+        }
+    }
+
+    /// Bounds of everything the structure holds.
+    #[must_use]
+    pub fn bounds(&self) -> Aabb {
+        match self {
+            Self::Brute(b) => b.bounds(),
+            Self::Aabb(b) => b.bounds(),
+            Self::Bvh(b, _) => b.bounds(),
+            Self::Grid(g) => g.bounds(),
+            Self::KdTree(k) => k.bounds(),
+        }
+    }
+
+    /// Size figures (build time left zero: [`crate::Scene`] measures it).
+    #[must_use]
+    pub fn stats(&self) -> AccelStats {
+        let mut s = match self {
+            Self::Brute(b) => b.stats(),
+            Self::Aabb(b) => b.stats(),
+            Self::Bvh(b, _) => b.stats(),
+            Self::Grid(g) => g.stats(),
+            Self::KdTree(k) => k.stats(),
+        };
+        s.name = self.kind().name();
+        s
+    }
+
+    /// Calls `leaf` for candidate primitives front to back, as far as the
+    /// bound it returns lets the traversal go.
+    #[inline]
+    pub(crate) fn traverse<C: RayCounter>(&self, ray: &Ray, counter: &mut C, leaf: &mut impl Leaf) {
+        if !ray.is_valid() {
+            return;
+        }
+        match self {
+            Self::Brute(b) => b.traverse(ray, counter, leaf),
+            Self::Aabb(b) => b.traverse(ray, counter, leaf),
+            Self::Bvh(b, _) => b.traverse(ray, counter, leaf),
+            Self::Grid(g) => g.traverse(ray, counter, leaf),
+            Self::KdTree(k) => k.traverse(ray, counter, leaf),
+        }
+    }
+}

@@ -1,0 +1,258 @@
+//! BVH builders: the lecture's median split, binned SAH and full-sweep SAH.
+//! They share one top-down recursion and differ only in how a node's
+//! primitives are split.
+
+use super::{Bvh, Node};
+use crate::BuildConfig;
+use raymesh_geometry::{Aabb, Vec3};
+
+/// Depth past which every builder splits by count (halving the node), so
+/// that no tree outgrows the traversal stack whatever the input.
+pub(crate) const SAH_DEPTH_LIMIT: usize = 64;
+
+/// Leaf size of the median builder (the lecture splits down to a few primitives).
+const MEDIAN_LEAF: usize = 4;
+
+/// How a BVH is built.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BvhBuilder {
+    /// Split at the centroid median on rotating axes x, y, z, x, … (the
+    /// lecture's top-down builder): fast and balanced, blind to geometry.
+    Median,
+    /// Binned SAH (Wald, "On fast construction of SAH-based bounding volume
+    /// hierarchies", 2007): centroids are counted into bins per axis and the
+    /// cheapest bin boundary wins. O(N) per level.
+    BinnedSah,
+    /// Full-sweep SAH (MacDonald & Booth 1990): every centroid position on
+    /// every axis is a candidate. Best trees, O(N log N) per level.
+    SweepSah,
+}
+
+struct Ctx<'a> {
+    boxes: &'a [Aabb],
+    centroids: Vec<Vec3>,
+    config: &'a BuildConfig,
+    builder: BvhBuilder,
+    nodes: Vec<Node>,
+}
+
+impl BvhBuilder {
+    /// Builds a BVH over primitive boxes; primitive `i` has box `boxes[i]`.
+    #[must_use]
+    pub fn build(self, boxes: &[Aabb], config: &BuildConfig) -> Bvh {
+        let n = boxes.len();
+        if n == 0 {
+            return Bvh::default();
+        }
+        assert!(n < u32::MAX as usize, "too many primitives for u32 indices");
+        let mut ids: Vec<u32> = (0..n as u32).collect();
+        let mut ctx = Ctx {
+            boxes,
+            centroids: boxes.iter().map(Aabb::centroid).collect(),
+            config,
+            builder: self,
+            nodes: Vec::with_capacity(2 * n / config.max_leaf.max(1) + 1),
+        };
+        ctx.nodes.push(Node::new(Aabb::EMPTY));
+        ctx.build(0, &mut ids, 0, 1);
+        Bvh {
+            nodes: ctx.nodes,
+            prim_ids: ids,
+        }
+    }
+}
+
+impl Ctx<'_> {
+    fn bounds(&self, ids: &[u32]) -> Aabb {
+        ids.iter()
+            .fold(Aabb::EMPTY, |b, &i| b.union(self.boxes[i as usize]))
+    }
+
+    fn centroid_bounds(&self, ids: &[u32]) -> Aabb {
+        ids.iter()
+            .fold(Aabb::EMPTY, |b, &i| b.grow(self.centroids[i as usize]))
+    }
+
+    /// Builds node `node` over `ids`, which start at `offset` in the permutation.
+    fn build(&mut self, node: usize, ids: &mut [u32], offset: u32, depth: usize) {
+        let bounds = self.bounds(ids);
+        self.nodes[node] = Node::new(bounds);
+        let split = if ids.len() <= 1 {
+            None
+        } else if depth >= SAH_DEPTH_LIMIT {
+            Some(self.split_by_count(ids))
+        } else {
+            match self.builder {
+                BvhBuilder::Median => {
+                    (ids.len() > MEDIAN_LEAF).then(|| self.split_median(ids, (depth - 1) % 3))
+                }
+                BvhBuilder::BinnedSah => self.split_binned(ids, bounds),
+                BvhBuilder::SweepSah => self.split_sweep(ids, bounds),
+            }
+        };
+        match split {
+            None => {
+                let n = &mut self.nodes[node];
+                n.index = offset;
+                n.count = ids.len() as u32;
+            }
+            Some(mid) => {
+                let first = self.nodes.len();
+                self.nodes[node].index = first as u32;
+                self.nodes.push(Node::new(Aabb::EMPTY));
+                self.nodes.push(Node::new(Aabb::EMPTY));
+                let (left, right) = ids.split_at_mut(mid);
+                self.build(first, left, offset, depth + 1);
+                self.build(first + 1, right, offset + mid as u32, depth + 1);
+            }
+        }
+    }
+
+    /// Puts the lower half of centroids on `axis` first; returns the middle.
+    fn split_median(&self, ids: &mut [u32], axis: usize) -> usize {
+        let mid = ids.len() / 2;
+        let c = &self.centroids;
+        ids.select_nth_unstable_by(mid, |&a, &b| {
+            c[a as usize][axis].total_cmp(&c[b as usize][axis])
+        });
+        mid
+    }
+
+    /// Median split on the longest centroid axis: the fallback that always
+    /// makes progress.
+    fn split_by_count(&self, ids: &mut [u32]) -> usize {
+        let axis = self.centroid_bounds(ids).longest_axis();
+        self.split_median(ids, axis)
+    }
+
+    /// Leaf or split, given the best split's SAH cost (relative to the node's area).
+    fn decide(
+        &self,
+        ids: &mut [u32],
+        best: Option<(f32, usize)>,
+        area: f32,
+        apply: impl FnOnce(&mut [u32]) -> usize,
+    ) -> Option<usize> {
+        let n = ids.len();
+        let leaf_cost = n as f32;
+        match best {
+            Some((cost, _)) if area > 0.0 => {
+                let split_cost = self.config.traversal_cost + cost / area;
+                if split_cost < leaf_cost || n > self.config.max_leaf {
+                    Some(apply(ids))
+                } else {
+                    None
+                }
+            }
+            _ if n > self.config.max_leaf => Some(self.split_by_count(ids)),
+            _ => None,
+        }
+    }
+
+    fn split_binned(&self, ids: &mut [u32], bounds: Aabb) -> Option<usize> {
+        let nb = self.config.bins.clamp(2, 256);
+        let cb = self.centroid_bounds(ids);
+        let ext = cb.extent();
+        // (cost, axis, bin boundary)
+        let mut best: Option<(f32, usize, usize)> = None;
+        let mut bin_box = vec![Aabb::EMPTY; nb];
+        let mut bin_count = vec![0u32; nb];
+        let mut right_area = vec![0.0f32; nb];
+        for axis in 0..3 {
+            if !(ext[axis] > 0.0) {
+                continue;
+            }
+            let scale = nb as f32 / ext[axis];
+            bin_box.fill(Aabb::EMPTY);
+            bin_count.fill(0);
+            for &i in ids.iter() {
+                let b = bin_of(self.centroids[i as usize][axis], cb.min[axis], scale, nb);
+                bin_box[b] = bin_box[b].union(self.boxes[i as usize]);
+                bin_count[b] += 1;
+            }
+            let mut acc = Aabb::EMPTY;
+            for b in (1..nb).rev() {
+                acc = acc.union(bin_box[b]);
+                right_area[b] = acc.half_area();
+            }
+            let (mut lbox, mut lcount) = (Aabb::EMPTY, 0u32);
+            let mut rcount = ids.len() as u32;
+            for b in 1..nb {
+                lbox = lbox.union(bin_box[b - 1]);
+                lcount += bin_count[b - 1];
+                rcount -= bin_count[b - 1];
+                if lcount == 0 || rcount == 0 {
+                    continue;
+                }
+                let cost = lbox.half_area() * lcount as f32 + right_area[b] * rcount as f32;
+                if best.is_none_or(|(c, _, _)| cost < c) {
+                    best = Some((cost, axis, b));
+                }
+            }
+        }
+        let area = bounds.half_area();
+        let centroids = &self.centroids;
+        self.decide(ids, best.map(|(c, a, _)| (c, a)), area, |ids| {
+            let (_, axis, boundary) = best.expect("a split was found");
+            let scale = nb as f32 / ext[axis];
+            partition(ids, |&i| {
+                bin_of(centroids[i as usize][axis], cb.min[axis], scale, nb) < boundary
+            })
+        })
+    }
+
+    fn split_sweep(&self, ids: &mut [u32], bounds: Aabb) -> Option<usize> {
+        let n = ids.len();
+        let c = &self.centroids;
+        let mut best: Option<(f32, usize, usize)> = None;
+        let mut sorted = ids.to_vec();
+        let mut right_area = vec![0.0f32; n];
+        for axis in 0..3 {
+            sorted.sort_unstable_by(|&a, &b| {
+                c[a as usize][axis]
+                    .total_cmp(&c[b as usize][axis])
+                    .then(a.cmp(&b))
+            });
+            let mut acc = Aabb::EMPTY;
+            for k in (1..n).rev() {
+                acc = acc.union(self.boxes[sorted[k] as usize]);
+                right_area[k] = acc.half_area();
+            }
+            let mut lbox = Aabb::EMPTY;
+            for k in 1..n {
+                lbox = lbox.union(self.boxes[sorted[k - 1] as usize]);
+                let cost = lbox.half_area() * k as f32 + right_area[k] * (n - k) as f32;
+                if best.is_none_or(|(bc, _, _)| cost < bc) {
+                    best = Some((cost, axis, k));
+                }
+            }
+        }
+        let area = bounds.half_area();
+        self.decide(ids, best.map(|(cst, a, _)| (cst, a)), area, |ids| {
+            let (_, axis, k) = best.expect("a split was found");
+            ids.sort_unstable_by(|&a, &b| {
+                c[a as usize][axis]
+                    .total_cmp(&c[b as usize][axis])
+                    .then(a.cmp(&b))
+            });
+            k
+        })
+    }
+}
+
+#[inline]
+fn bin_of(c: f32, min: f32, scale: f32, nb: usize) -> usize {
+    (((c - min) * scale) as usize).min(nb - 1)
+}
+
+/// Moves the elements satisfying `pred` to the front; returns how many there are.
+fn partition(ids: &mut [u32], pred: impl Fn(&u32) -> bool) -> usize {
+    let mut k = 0;
+    for i in 0..ids.len() {
+        if pred(&ids[i]) {
+            ids.swap(i, k);
+            k += 1;
+        }
+    }
+    k
+}

@@ -1,0 +1,248 @@
+//! Bounding volume hierarchy: a flat array of 32-byte nodes with `u32`
+//! indices, sibling children side by side, and a primitive permutation.
+//!
+//! Builders (one per file) see only primitive boxes and centroids; the tree
+//! never calls them. Traversal visits the nearer child first and keeps the
+//! farther on a fixed-size stack, whose depth the builders bound.
+
+mod build;
+
+pub use build::BvhBuilder;
+
+use crate::{AccelStats, Leaf, RayCounter};
+use raymesh_geometry::{cull_bound, Aabb, Ray, Vec3};
+
+/// Most nodes a traversal stack can hold. Builders never make a tree deeper
+/// than this: past [`build::SAH_DEPTH_LIMIT`] levels they split by count,
+/// which halves the primitives per level, so depth ≤ 64 + log2(2^32) = 96.
+pub(crate) const STACK_SIZE: usize = 96;
+
+/// A node: its box, and either two adjacent children (`count == 0`,
+/// `index` the first child) or a leaf of `count` primitives starting at
+/// `index` in the permutation. 32 bytes, so two fit a cache line.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[repr(C)]
+pub struct Node {
+    min: [f32; 3],
+    count: u32,
+    max: [f32; 3],
+    index: u32,
+}
+
+const _: () = assert!(std::mem::size_of::<Node>() == 32);
+
+impl Node {
+    fn new(b: Aabb) -> Self {
+        Self {
+            min: b.min.to_array(),
+            count: 0,
+            max: b.max.to_array(),
+            index: 0,
+        }
+    }
+
+    /// The node's box.
+    #[inline(always)]
+    #[must_use]
+    pub fn bounds(&self) -> Aabb {
+        Aabb::new(Vec3::from_array(self.min), Vec3::from_array(self.max))
+    }
+
+    /// Whether this is a leaf.
+    #[inline(always)]
+    #[must_use]
+    pub fn is_leaf(&self) -> bool {
+        self.count > 0
+    }
+}
+
+/// A BVH: nodes (root first) and the primitive permutation leaves index into.
+#[derive(Clone, Debug, Default)]
+pub struct Bvh {
+    nodes: Vec<Node>,
+    prim_ids: Vec<u32>,
+}
+
+impl Bvh {
+    /// The nodes, root first (empty for no primitives).
+    #[must_use]
+    pub fn nodes(&self) -> &[Node] {
+        &self.nodes
+    }
+
+    /// The primitive permutation: leaf `(index, count)` holds
+    /// `prim_ids[index..index + count]`. A caller that reorders its
+    /// primitives by it can drop this indirection.
+    #[must_use]
+    pub fn prim_ids(&self) -> &[u32] {
+        &self.prim_ids
+    }
+
+    pub(crate) fn bounds(&self) -> Aabb {
+        self.nodes.first().map_or(Aabb::EMPTY, Node::bounds)
+    }
+
+    /// Depth of the deepest leaf (1 for a single leaf, 0 for an empty tree).
+    #[must_use]
+    pub fn depth(&self) -> usize {
+        if self.nodes.is_empty() {
+            return 0;
+        }
+        let mut max = 0;
+        let mut stack = vec![(0usize, 1usize)];
+        while let Some((i, d)) = stack.pop() {
+            let n = &self.nodes[i];
+            if n.is_leaf() {
+                max = max.max(d);
+            } else {
+                stack.push((n.index as usize, d + 1));
+                stack.push((n.index as usize + 1, d + 1));
+            }
+        }
+        max
+    }
+
+    pub(crate) fn stats(&self) -> AccelStats {
+        let leaves = self.nodes.iter().filter(|n| n.is_leaf()).count();
+        let root_area = self.bounds().half_area() as f64;
+        let sah_cost = if self.nodes.is_empty() {
+            0.0
+        } else if root_area <= 0.0 {
+            self.prim_ids.len() as f64
+        } else {
+            self.nodes
+                .iter()
+                .map(|n| {
+                    let a = n.bounds().half_area() as f64 / root_area;
+                    if n.is_leaf() {
+                        a * n.count as f64
+                    } else {
+                        a
+                    }
+                })
+                .sum()
+        };
+        AccelStats {
+            nodes: self.nodes.len(),
+            leaves,
+            depth: self.depth(),
+            bytes: self.nodes.len() * std::mem::size_of::<Node>() + self.prim_ids.len() * 4,
+            sah_cost,
+            ..AccelStats::default()
+        }
+    }
+
+    /// Checks every invariant: children inside their parent, each primitive
+    /// in exactly one leaf and inside its box, indices in range. For tests.
+    pub fn validate(&self, boxes: &[Aabb]) -> Result<(), String> {
+        if boxes.is_empty() {
+            return if self.nodes.is_empty() {
+                Ok(())
+            } else {
+                Err("nodes without primitives".into())
+            };
+        }
+        let mut seen = vec![false; boxes.len()];
+        let mut stack = vec![(0usize, 1usize)];
+        while let Some((i, depth)) = stack.pop() {
+            if depth > STACK_SIZE {
+                return Err(format!("depth {depth} exceeds the traversal stack"));
+            }
+            let n = self.nodes.get(i).ok_or(format!("node {i} out of range"))?;
+            let b = n.bounds();
+            if n.is_leaf() {
+                let range = n.index as usize..(n.index + n.count) as usize;
+                for &p in self.prim_ids.get(range).ok_or("leaf range out of range")? {
+                    let p = p as usize;
+                    if std::mem::replace(&mut seen[p], true) {
+                        return Err(format!("primitive {p} in two leaves"));
+                    }
+                    if !boxes[p].is_empty() && b.union(boxes[p]) != b {
+                        return Err(format!("primitive {p} sticks out of leaf {i}"));
+                    }
+                }
+            } else {
+                let c = n.index as usize;
+                if c + 1 >= self.nodes.len() || c <= i {
+                    return Err(format!("node {i} has bad children {c}"));
+                }
+                for k in [c, c + 1] {
+                    let cb = self.nodes[k].bounds();
+                    if !cb.is_empty() && b.union(cb) != b {
+                        return Err(format!("child {k} sticks out of node {i}"));
+                    }
+                    stack.push((k, depth + 1));
+                }
+            }
+        }
+        match seen.iter().position(|s| !s) {
+            Some(p) => Err(format!("primitive {p} in no leaf")),
+            None => Ok(()),
+        }
+    }
+
+    /// Closest-first traversal (any-hit too: the leaf returns `-inf` to stop).
+    #[inline]
+    pub(crate) fn traverse<C: RayCounter>(&self, ray: &Ray, counter: &mut C, leaf: &mut impl Leaf) {
+        let Some(root) = self.nodes.first() else {
+            return;
+        };
+        let (o, inv, oct, tmin) = (ray.origin(), ray.inv_dir(), ray.octant(), ray.tmin());
+        let mut tmax = ray.tmax();
+        let (entry, exit) = root.bounds().slab(o, inv, oct, tmin, cull_bound(tmax));
+        if entry > exit {
+            return;
+        }
+        let mut stack = [(0u32, 0.0f32); STACK_SIZE];
+        let mut sp = 0usize;
+        let mut node = root;
+        loop {
+            counter.node();
+            if node.is_leaf() {
+                for &p in &self.prim_ids[node.index as usize..(node.index + node.count) as usize] {
+                    counter.prim();
+                    tmax = leaf(p);
+                    if tmax < tmin {
+                        return;
+                    }
+                }
+            } else {
+                let l = &self.nodes[node.index as usize];
+                let r = &self.nodes[node.index as usize + 1];
+                let bound = cull_bound(tmax);
+                let (l0, l1) = l.bounds().slab(o, inv, oct, tmin, bound);
+                let (r0, r1) = r.bounds().slab(o, inv, oct, tmin, bound);
+                let (hit_l, hit_r) = (l0 <= l1, r0 <= r1);
+                if hit_l && hit_r {
+                    let (near, far, far_entry) = if l0 <= r0 {
+                        (l, node.index + 1, r0)
+                    } else {
+                        (r, node.index, l0)
+                    };
+                    stack[sp] = (far, far_entry);
+                    sp += 1;
+                    node = near;
+                    continue;
+                } else if hit_l {
+                    node = l;
+                    continue;
+                } else if hit_r {
+                    node = r;
+                    continue;
+                }
+            }
+            // Pop the next node still in reach; equal entries stay (ties by index).
+            loop {
+                if sp == 0 {
+                    return;
+                }
+                sp -= 1;
+                let (i, entry) = stack[sp];
+                if entry <= cull_bound(tmax) {
+                    node = &self.nodes[i as usize];
+                    break;
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,287 @@
+//! Uniform grid traversed by 3D-DDA (Amanatides & Woo, "A fast voxel
+//! traversal algorithm for ray tracing", 1987).
+
+use crate::{AccelStats, BuildConfig, Leaf, RayCounter};
+use raymesh_geometry::{cull_bound, Aabb, Ray, Vec3};
+use std::cell::RefCell;
+
+/// Most cells a grid may have, whatever the density asks: keeps the cell
+/// table within a few hundred MB for any input.
+const MAX_CELLS: usize = 1 << 26;
+
+/// A uniform grid over the primitives' bounds. Each cell lists the
+/// primitives whose (slightly padded) box overlaps it, in CSR form.
+///
+/// A ray steps through cells in order and stops at the first cell whose
+/// exit lies beyond the best hit: any closer hit would lie in a cell already
+/// visited. Boxes are padded by a small fraction of a cell when binned, so
+/// rounding in the hit point cannot move a hit out of the cells that hold
+/// its primitive. A primitive in several cells is tested once per ray
+/// (a per-thread mailbox).
+#[derive(Clone, Debug)]
+pub struct Grid {
+    bounds: Aabb,
+    res: [u32; 3],
+    cell_size: Vec3,
+    inv_cell_size: Vec3,
+    cell_starts: Vec<u32>,
+    cell_prims: Vec<u32>,
+    len: usize,
+}
+
+thread_local! {
+    /// Mailbox: the ray stamp each primitive was last tested with.
+    static MAILBOX: RefCell<(u32, Vec<u32>)> = const { RefCell::new((0, Vec::new())) };
+}
+
+impl Grid {
+    /// Builds a grid of about `density × N` cells shaped like the bounds.
+    #[must_use]
+    pub fn build(boxes: &[Aabb], config: &BuildConfig) -> Self {
+        let bounds = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(*b));
+        let n = boxes.len();
+        if n == 0 || bounds.is_empty() {
+            return Self {
+                bounds: Aabb::EMPTY,
+                res: [1; 3],
+                cell_size: Vec3::ONE,
+                inv_cell_size: Vec3::ONE,
+                cell_starts: vec![0, 0],
+                cell_prims: Vec::new(),
+                len: n,
+            };
+        }
+        // Flat boxes get a thickness so cells have volume.
+        let ext = bounds.extent();
+        let floor = ext.max_element().max(f32::MIN_POSITIVE) * 1e-3;
+        let ext = ext.max(Vec3::splat(floor));
+        let target = (config.grid_density.max(1e-3) as f64 * n as f64).clamp(1.0, MAX_CELLS as f64);
+        let k = (target / (ext.x as f64 * ext.y as f64 * ext.z as f64)).cbrt();
+        let mut res = [0u32; 3];
+        for a in 0..3 {
+            res[a] = ((ext[a] as f64 * k).round() as u32).clamp(1, 1 << 12);
+        }
+        while res.iter().map(|&r| r as usize).product::<usize>() > MAX_CELLS {
+            let a = (0..3).max_by_key(|&a| res[a]).unwrap();
+            res[a] = (res[a] / 2).max(1);
+        }
+        let resv = Vec3::new(res[0] as f32, res[1] as f32, res[2] as f32);
+        let cell_size = ext / resv;
+        let inv_cell_size = resv / ext;
+        let bounds = Aabb::new(bounds.min, bounds.min + ext);
+        let mut g = Self {
+            bounds,
+            res,
+            cell_size,
+            inv_cell_size,
+            cell_starts: Vec::new(),
+            cell_prims: Vec::new(),
+            len: n,
+        };
+        // Two passes: count per cell, then fill (CSR).
+        let ncells = res.iter().map(|&r| r as usize).product::<usize>();
+        let mut counts = vec![0u32; ncells + 1];
+        for b in boxes {
+            let (lo, hi) = g.cell_range(b);
+            for z in lo[2]..=hi[2] {
+                for y in lo[1]..=hi[1] {
+                    for x in lo[0]..=hi[0] {
+                        counts[g.cell_index([x, y, z])] += 1;
+                    }
+                }
+            }
+        }
+        let mut total = 0u32;
+        for c in counts.iter_mut() {
+            let here = *c;
+            *c = total;
+            total += here;
+        }
+        let mut fill = counts.clone();
+        let mut prims = vec![0u32; total as usize];
+        for (i, b) in boxes.iter().enumerate() {
+            let (lo, hi) = g.cell_range(b);
+            for z in lo[2]..=hi[2] {
+                for y in lo[1]..=hi[1] {
+                    for x in lo[0]..=hi[0] {
+                        let c = g.cell_index([x, y, z]);
+                        prims[fill[c] as usize] = i as u32;
+                        fill[c] += 1;
+                    }
+                }
+            }
+        }
+        g.cell_starts = counts;
+        g.cell_prims = prims;
+        g
+    }
+
+    /// Cells per axis.
+    #[must_use]
+    pub fn resolution(&self) -> [u32; 3] {
+        self.res
+    }
+
+    pub(crate) fn bounds(&self) -> Aabb {
+        self.bounds
+    }
+
+    #[inline(always)]
+    fn cell_index(&self, c: [u32; 3]) -> usize {
+        (c[2] as usize * self.res[1] as usize + c[1] as usize) * self.res[0] as usize
+            + c[0] as usize
+    }
+
+    /// Cell of a point, clamped into the grid.
+    #[inline(always)]
+    fn cell_of(&self, p: Vec3, a: usize) -> u32 {
+        let f = (p[a] - self.bounds.min[a]) * self.inv_cell_size[a];
+        // `as` saturates (NaN → 0), then clamp to the last cell.
+        (f.floor().max(0.0) as u32).min(self.res[a] - 1)
+    }
+
+    /// Inclusive cell range a box overlaps, padded by 1/1000 of a cell.
+    fn cell_range(&self, b: &Aabb) -> ([u32; 3], [u32; 3]) {
+        let pad = self.cell_size * 1e-3;
+        let (lo, hi) = (b.min - pad, b.max + pad);
+        let mut l = [0; 3];
+        let mut h = [0; 3];
+        for a in 0..3 {
+            l[a] = self.cell_of(lo, a);
+            h[a] = self.cell_of(hi, a);
+        }
+        (l, h)
+    }
+
+    pub(crate) fn stats(&self) -> AccelStats {
+        let ncells = self.cell_starts.len().saturating_sub(1);
+        let nonempty = self.cell_starts.windows(2).filter(|w| w[1] > w[0]).count();
+        let root_area = self.bounds.half_area() as f64;
+        let c = self.cell_size;
+        let cell_area = (c.x * c.y + c.y * c.z + c.z * c.x) as f64;
+        let sah_cost = if root_area > 0.0 {
+            // Expected cells stepped (one per unit of the grid's mean width)
+            // plus the primitives in them, weighted by each cell's area.
+            let refs = self.cell_prims.len() as f64;
+            ncells as f64 * cell_area / root_area + refs * cell_area / root_area
+        } else {
+            self.len as f64
+        };
+        AccelStats {
+            nodes: ncells,
+            leaves: nonempty,
+            depth: 1,
+            bytes: self.cell_starts.len() * 4
+                + self.cell_prims.len() * 4
+                + std::mem::size_of::<Self>(),
+            sah_cost,
+            ..AccelStats::default()
+        }
+    }
+
+    #[inline]
+    pub(crate) fn traverse<C: RayCounter>(&self, ray: &Ray, counter: &mut C, leaf: &mut impl Leaf) {
+        let Some((t_enter, _)) = self.bounds.intersect_ray(ray, ray.tmax()) else {
+            return;
+        };
+        MAILBOX.with(|mb| match mb.try_borrow_mut() {
+            Ok(mut mb) => {
+                let (stamp, marks) = &mut *mb;
+                if marks.len() < self.len {
+                    marks.resize(self.len, 0);
+                }
+                *stamp = stamp.wrapping_add(1);
+                if *stamp == 0 {
+                    marks.fill(0);
+                    *stamp = 1;
+                }
+                self.dda(ray, t_enter, counter, leaf, Some((*stamp, marks)));
+            }
+            // A grid inside a grid (instances): the inner one goes without a
+            // mailbox; testing a primitive twice gives the same answer.
+            Err(_) => self.dda(ray, t_enter, counter, leaf, None),
+        });
+    }
+
+    #[inline(always)]
+    fn dda<C: RayCounter>(
+        &self,
+        ray: &Ray,
+        t_enter: f32,
+        counter: &mut C,
+        leaf: &mut impl Leaf,
+        mut mailbox: Option<(u32, &mut Vec<u32>)>,
+    ) {
+        let (o, d, inv) = (ray.origin(), ray.dir(), ray.inv_dir());
+        let p = ray.at(t_enter);
+        let mut cell = [0u32; 3];
+        let mut step = [0i32; 3];
+        for a in 0..3 {
+            cell[a] = self.cell_of(p, a);
+            step[a] = if d[a] > 0.0 {
+                1
+            } else if d[a] < 0.0 {
+                -1
+            } else {
+                0
+            };
+        }
+        // Exit distance of the current cell on each axis, computed from the
+        // boundary itself (not accumulated) so it does not drift.
+        let boundary_t = |a: usize, c: u32| -> f32 {
+            if step[a] == 0 {
+                return f32::INFINITY;
+            }
+            let edge = c + (step[a] > 0) as u32;
+            (self.bounds.min[a] + edge as f32 * self.cell_size[a] - o[a]) * inv[a]
+        };
+        let mut next = [
+            boundary_t(0, cell[0]),
+            boundary_t(1, cell[1]),
+            boundary_t(2, cell[2]),
+        ];
+        let mut tmax = ray.tmax();
+        loop {
+            counter.node();
+            let c = self.cell_index(cell);
+            for &p in
+                &self.cell_prims[self.cell_starts[c] as usize..self.cell_starts[c + 1] as usize]
+            {
+                if let Some((stamp, marks)) = mailbox.as_mut() {
+                    if std::mem::replace(&mut marks[p as usize], *stamp) == *stamp {
+                        continue;
+                    }
+                }
+                counter.prim();
+                tmax = leaf(p);
+                if tmax < ray.tmin() {
+                    return;
+                }
+            }
+            let a = if next[0] <= next[1] && next[0] <= next[2] {
+                0
+            } else if next[1] <= next[2] {
+                1
+            } else {
+                2
+            };
+            let exit = next[a];
+            // Any closer hit would lie in a cell already visited.
+            if cull_bound(tmax) < exit || exit.is_infinite() {
+                return;
+            }
+            if step[a] > 0 {
+                if cell[a] + 1 >= self.res[a] {
+                    return;
+                }
+                cell[a] += 1;
+            } else {
+                if cell[a] == 0 {
+                    return;
+                }
+                cell[a] -= 1;
+            }
+            next[a] = boundary_t(a, cell[a]);
+        }
+    }
+}

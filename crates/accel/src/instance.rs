@@ -1,0 +1,154 @@
+//! Two levels: a top structure over instances, each an object (with its own
+//! bottom structure) placed by an affine transform, so one mesh is stored
+//! once and drawn many times.
+
+use crate::{Accel, AccelKind, AccelStats, BuildConfig, Hit, NoStats, RayCounter, Surface};
+use raymesh_geometry::{Aabb, Mat3, Mat4, Ray, Vec3};
+
+/// One placement of an object.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Instance {
+    /// Index of the object in [`Instances::objects`].
+    pub object: u32,
+    /// Object-to-world transform (affine).
+    pub transform: Mat4,
+}
+
+#[derive(Clone, Debug)]
+struct Placed {
+    object: u32,
+    world_to_object: Mat4,
+    normal_matrix: Mat3,
+}
+
+/// Instances of objects under a top-level structure.
+///
+/// A ray is carried into object space with the inverse transform without
+/// normalizing its direction, so `t` means the same in both spaces. The
+/// closest hit is the least `(t, instance, prim)`.
+pub struct Instances<S> {
+    objects: Vec<S>,
+    placed: Vec<Placed>,
+    top: Accel,
+    bounds: Aabb,
+}
+
+impl<S: Surface> Instances<S> {
+    /// Builds the top structure of `kind` over the instances' world boxes.
+    /// Instances with a singular transform or an unknown object are skipped
+    /// with an error naming them.
+    pub fn build(objects: Vec<S>, instances: &[Instance], kind: AccelKind) -> Result<Self, String> {
+        let mut placed = Vec::with_capacity(instances.len());
+        let mut boxes = Vec::with_capacity(instances.len());
+        for (k, inst) in instances.iter().enumerate() {
+            let obj = objects
+                .get(inst.object as usize)
+                .ok_or_else(|| format!("instance {k}: no object {}", inst.object))?;
+            let m = inst.transform;
+            let det = m.determinant();
+            if !(det.is_finite() && det != 0.0) {
+                return Err(format!("instance {k}: transform is singular or not finite"));
+            }
+            let inv = m.inverse();
+            boxes.push(transform_box(&m, obj.bounds()));
+            placed.push(Placed {
+                object: inst.object,
+                world_to_object: inv,
+                normal_matrix: Mat3::from_mat4(inv).transpose(),
+            });
+        }
+        let top = Accel::build(kind, &boxes, &BuildConfig::default());
+        let bounds = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(*b));
+        Ok(Self {
+            objects,
+            placed,
+            top,
+            bounds,
+        })
+    }
+
+    /// The objects.
+    #[must_use]
+    pub fn objects(&self) -> &[S] {
+        &self.objects
+    }
+
+    /// Figures of the top structure.
+    #[must_use]
+    pub fn top_stats(&self) -> AccelStats {
+        self.top.stats()
+    }
+
+    /// Closest hit, counting top-level work.
+    pub fn intersect_counted<C: RayCounter>(&self, ray: &Ray, counter: &mut C) -> Option<Hit> {
+        let mut best: Option<Hit> = None;
+        let mut tmax = ray.tmax();
+        self.top.traverse(ray, counter, &mut |k| {
+            let p = &self.placed[k as usize];
+            let local = self.local_ray(p, ray, tmax);
+            if let Some(mut h) = self.objects[p.object as usize].intersect(&local) {
+                let better = match best {
+                    None => true,
+                    Some(b) => h.t < b.t || (h.t == b.t && (k, h.prim) < (b.instance, b.prim)),
+                };
+                if better {
+                    h.instance = k;
+                    h.normal = (p.normal_matrix * h.normal).normalize_or_zero();
+                    tmax = h.t;
+                    best = Some(h);
+                }
+            }
+            tmax
+        });
+        best
+    }
+
+    fn local_ray(&self, p: &Placed, ray: &Ray, tmax: f32) -> Ray {
+        Ray::new(
+            p.world_to_object.transform_point3(ray.origin()),
+            p.world_to_object.transform_vector3(ray.dir()),
+            ray.tmin(),
+            tmax,
+        )
+    }
+}
+
+impl<S: Surface> Surface for Instances<S> {
+    fn bounds(&self) -> Aabb {
+        self.bounds
+    }
+    fn intersect(&self, ray: &Ray) -> Option<Hit> {
+        self.intersect_counted(ray, &mut NoStats)
+    }
+    fn occluded(&self, ray: &Ray) -> bool {
+        let mut hit = false;
+        self.top.traverse(ray, &mut NoStats, &mut |k| {
+            let p = &self.placed[k as usize];
+            if self.objects[p.object as usize].occluded(&self.local_ray(p, ray, ray.tmax())) {
+                hit = true;
+                f32::NEG_INFINITY
+            } else {
+                ray.tmax()
+            }
+        });
+        hit
+    }
+}
+
+/// World box of a transformed box: the box of its eight transformed corners.
+fn transform_box(m: &Mat4, b: Aabb) -> Aabb {
+    if b.is_empty() {
+        return Aabb::EMPTY;
+    }
+    let w = (0..8).fold(Aabb::EMPTY, |acc, i| {
+        let c = Vec3::new(
+            if i & 1 == 0 { b.min.x } else { b.max.x },
+            if i & 2 == 0 { b.min.y } else { b.max.y },
+            if i & 4 == 0 { b.min.z } else { b.max.z },
+        );
+        acc.grow(m.transform_point3(c))
+    });
+    // Pad for the rounding of the transform (of the corners here, of the ray later).
+    let pad = w.extent() * 1e-5 + Vec3::splat(w.min.abs().max(w.max.abs()).max_element() * 1e-6);
+    Aabb::new(w.min - pad, w.max + pad)
+}

@@ -1,0 +1,306 @@
+//! k-d tree (a BSP tree with axis-aligned planes), built by binned SAH with
+//! an empty-space bonus (Wald & Havran, "On building fast kd-trees for ray
+//! tracing, and on doing that in O(N log N)", 2006; binning as in Hunt et
+//! al. 2006) and traversed front to back (pbrt-v4's `KdTreeAggregate`).
+
+use crate::{AccelStats, BuildConfig, Leaf, RayCounter};
+use raymesh_geometry::{cull_bound, Aabb, Ray};
+
+/// Deepest a k-d tree may grow; also the traversal stack size.
+const MAX_DEPTH: usize = 64;
+/// Cost discount for a split that cuts off empty space.
+const EMPTY_BONUS: f32 = 0.2;
+/// Splits that do not lower the cost, tolerated along one path.
+const MAX_BAD_REFINES: u32 = 3;
+
+/// An 8-byte node. `a` holds the split position's bits (interior) or the
+/// first primitive's offset (leaf); `b`'s low two bits hold the axis (0–2)
+/// or 3 for a leaf, its upper 30 bits the above child's index (interior;
+/// the below child is the next node) or the primitive count (leaf).
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct KdNode {
+    a: u32,
+    b: u32,
+}
+
+impl KdNode {
+    fn leaf(offset: u32, count: u32) -> Self {
+        Self {
+            a: offset,
+            b: (count << 2) | 3,
+        }
+    }
+    fn interior(axis: usize, split: f32, above: u32) -> Self {
+        Self {
+            a: split.to_bits(),
+            b: (above << 2) | axis as u32,
+        }
+    }
+    #[inline(always)]
+    fn is_leaf(self) -> bool {
+        self.b & 3 == 3
+    }
+    #[inline(always)]
+    fn axis(self) -> usize {
+        (self.b & 3) as usize
+    }
+    #[inline(always)]
+    fn split(self) -> f32 {
+        f32::from_bits(self.a)
+    }
+    #[inline(always)]
+    fn upper(self) -> u32 {
+        self.b >> 2
+    }
+}
+
+/// A k-d tree over primitive boxes. Primitives that straddle or touch a
+/// split plane go to both sides, so a hit on the plane is found from either.
+#[derive(Clone, Debug)]
+pub struct KdTree {
+    bounds: Aabb,
+    nodes: Vec<KdNode>,
+    prims: Vec<u32>,
+}
+
+struct Builder<'a> {
+    boxes: &'a [Aabb],
+    config: &'a BuildConfig,
+    nodes: Vec<KdNode>,
+    prims: Vec<u32>,
+    max_depth: usize,
+}
+
+impl KdTree {
+    /// Builds the tree over primitive `i`'s box `boxes[i]`.
+    #[must_use]
+    pub fn build(boxes: &[Aabb], config: &BuildConfig) -> Self {
+        let bounds = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(*b));
+        let n = boxes.len();
+        let mut b = Builder {
+            boxes,
+            config,
+            nodes: Vec::new(),
+            prims: Vec::new(),
+            // Havran's rule of thumb, 8 + 1.3 log2 N, within the stack.
+            max_depth: ((8.0 + 1.3 * (n.max(1) as f64).log2()).round() as usize).min(MAX_DEPTH - 1),
+        };
+        if n > 0 {
+            b.build(bounds, (0..n as u32).collect(), 0, 0);
+        }
+        Self {
+            bounds,
+            nodes: b.nodes,
+            prims: b.prims,
+        }
+    }
+
+    pub(crate) fn bounds(&self) -> Aabb {
+        self.bounds
+    }
+
+    pub(crate) fn stats(&self) -> AccelStats {
+        let root_area = self.bounds.half_area() as f64;
+        let (mut leaves, mut depth, mut sah) = (0usize, 0usize, 0.0f64);
+        if !self.nodes.is_empty() {
+            let mut stack = vec![(0usize, self.bounds, 1usize)];
+            while let Some((i, b, d)) = stack.pop() {
+                let n = self.nodes[i];
+                let rel = if root_area > 0.0 {
+                    b.half_area() as f64 / root_area
+                } else {
+                    1.0
+                };
+                if n.is_leaf() {
+                    leaves += 1;
+                    depth = depth.max(d);
+                    sah += rel * n.upper() as f64;
+                } else {
+                    sah += rel;
+                    let (mut lo, mut hi) = (b, b);
+                    lo.max[n.axis()] = n.split();
+                    hi.min[n.axis()] = n.split();
+                    stack.push((i + 1, lo, d + 1));
+                    stack.push((n.upper() as usize, hi, d + 1));
+                }
+            }
+        }
+        AccelStats {
+            nodes: self.nodes.len(),
+            leaves,
+            depth,
+            bytes: self.nodes.len() * std::mem::size_of::<KdNode>() + self.prims.len() * 4,
+            sah_cost: sah,
+            ..AccelStats::default()
+        }
+    }
+
+    #[inline]
+    pub(crate) fn traverse<C: RayCounter>(&self, ray: &Ray, counter: &mut C, leaf: &mut impl Leaf) {
+        if self.nodes.is_empty() {
+            return;
+        }
+        let Some((t0, t1)) = self.bounds.intersect_ray(ray, ray.tmax()) else {
+            return;
+        };
+        let (o, d, inv) = (ray.origin(), ray.dir(), ray.inv_dir());
+        let mut tmax = ray.tmax();
+        let mut stack = [(0u32, 0.0f32, 0.0f32); MAX_DEPTH];
+        let mut sp = 0usize;
+        let (mut node, mut n0, mut n1) = (0usize, t0, t1);
+        loop {
+            if n0 <= cull_bound(tmax) {
+                counter.node();
+                let n = self.nodes[node];
+                if !n.is_leaf() {
+                    let axis = n.axis();
+                    let split = n.split();
+                    let (below, above) = (node + 1, n.upper() as usize);
+                    if d[axis] == 0.0 {
+                        // Parallel to the plane: one side holds the whole ray.
+                        node = if o[axis] <= split { below } else { above };
+                        continue;
+                    }
+                    let t = (split - o[axis]) * inv[axis];
+                    // Pad the crossing so that rounding never skips a side.
+                    let pad = t.abs() * 1e-6 + f32::MIN_POSITIVE;
+                    let (first, second) = if d[axis] > 0.0 {
+                        (below, above)
+                    } else {
+                        (above, below)
+                    };
+                    if t - pad > n1 {
+                        node = first;
+                    } else if t + pad < n0 {
+                        node = second;
+                    } else {
+                        stack[sp] = (second as u32, (t - pad).max(n0), n1);
+                        sp += 1;
+                        node = first;
+                        n1 = (t + pad).min(n1);
+                    }
+                    continue;
+                }
+                let start = n.a as usize;
+                for &p in &self.prims[start..start + n.upper() as usize] {
+                    counter.prim();
+                    tmax = leaf(p);
+                    if tmax < ray.tmin() {
+                        return;
+                    }
+                }
+            }
+            if sp == 0 {
+                return;
+            }
+            sp -= 1;
+            let (i, a, b) = stack[sp];
+            (node, n0, n1) = (i as usize, a, b);
+        }
+    }
+}
+
+impl Builder<'_> {
+    fn build(&mut self, bounds: Aabb, ids: Vec<u32>, depth: usize, bad: u32) {
+        let n = ids.len();
+        let here = self.nodes.len();
+        if n <= 1 || depth >= self.max_depth {
+            self.make_leaf(&ids);
+            return;
+        }
+        let Some((cost, axis, split)) = self.best_split(bounds, &ids) else {
+            self.make_leaf(&ids);
+            return;
+        };
+        let leaf_cost = n as f32;
+        let mut bad = bad;
+        if cost >= leaf_cost {
+            bad += 1;
+            if bad > MAX_BAD_REFINES || n <= self.config.max_leaf / 2 {
+                self.make_leaf(&ids);
+                return;
+            }
+        }
+        let boxes = self.boxes;
+        // Touching prims go both ways (`<=`, `>=`), so plane hits are found from either side.
+        let below: Vec<u32> = ids
+            .iter()
+            .copied()
+            .filter(|&i| boxes[i as usize].min[axis] <= split)
+            .collect();
+        let above: Vec<u32> = ids
+            .iter()
+            .copied()
+            .filter(|&i| boxes[i as usize].max[axis] >= split)
+            .collect();
+        if below.len() == n && above.len() == n {
+            self.make_leaf(&ids);
+            return;
+        }
+        drop(ids);
+        self.nodes.push(KdNode::interior(axis, split, 0));
+        let (mut lo, mut hi) = (bounds, bounds);
+        lo.max[axis] = split;
+        hi.min[axis] = split;
+        self.build(lo, below, depth + 1, bad);
+        let above_index = self.nodes.len() as u32;
+        self.nodes[here] = KdNode::interior(axis, split, above_index);
+        self.build(hi, above, depth + 1, bad);
+    }
+
+    fn make_leaf(&mut self, ids: &[u32]) {
+        self.nodes
+            .push(KdNode::leaf(self.prims.len() as u32, ids.len() as u32));
+        self.prims.extend_from_slice(ids);
+    }
+
+    /// Cheapest plane among the bin boundaries of every axis, as (cost, axis, position).
+    fn best_split(&self, bounds: Aabb, ids: &[u32]) -> Option<(f32, usize, f32)> {
+        let nb = self.config.bins.clamp(2, 256);
+        let ext = bounds.extent();
+        let area = bounds.half_area();
+        if !(area > 0.0) {
+            return None;
+        }
+        let mut best: Option<(f32, usize, f32)> = None;
+        let mut mins = vec![0u32; nb + 1];
+        let mut maxs = vec![0u32; nb + 1];
+        for axis in 0..3 {
+            if !(ext[axis] > 0.0) {
+                continue;
+            }
+            let scale = nb as f32 / ext[axis];
+            mins.fill(0);
+            maxs.fill(0);
+            for &i in ids {
+                let b = self.boxes[i as usize];
+                let lo = ((b.min[axis] - bounds.min[axis]) * scale).max(0.0) as usize;
+                let hi = ((b.max[axis] - bounds.min[axis]) * scale).max(0.0) as usize;
+                mins[lo.min(nb)] += 1;
+                maxs[hi.min(nb)] += 1;
+            }
+            let (o1, o2) = ((axis + 1) % 3, (axis + 2) % 3);
+            let cross = ext[o1] * ext[o2];
+            let perim = ext[o1] + ext[o2];
+            let (mut n_below, mut n_above) = (0u32, ids.len() as u32);
+            for k in 1..nb {
+                n_below += mins[k - 1];
+                n_above -= maxs[k - 1];
+                let pos = bounds.min[axis] + k as f32 * ext[axis] / nb as f32;
+                let (wb, wa) = (pos - bounds.min[axis], bounds.max[axis] - pos);
+                let (ab, aa) = (cross + wb * perim, cross + wa * perim);
+                let bonus = if n_below == 0 || n_above == 0 {
+                    1.0 - EMPTY_BONUS
+                } else {
+                    1.0
+                };
+                let cost = self.config.traversal_cost
+                    + bonus * (ab * n_below as f32 + aa * n_above as f32) / area;
+                if best.is_none_or(|(c, _, _)| cost < c) {
+                    best = Some((cost, axis, pos));
+                }
+            }
+        }
+        best
+    }
+}

@@ -1,0 +1,146 @@
+//! Primitives plus a structure: the lecture's Surface interface.
+
+use crate::{
+    Accel, AccelKind, AccelStats, BuildConfig, CountStats, NoStats, PrimHit, Primitives, RayCounter,
+};
+use raymesh_geometry::{Aabb, Ray, Vec3};
+use std::time::Instant;
+
+/// The closest hit of a ray.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Hit {
+    /// Ray parameter of the hit.
+    pub t: f32,
+    /// Index of the primitive hit.
+    pub prim: u32,
+    /// Instance hit, in an instanced scene ([`crate::Instances`]); 0 otherwise.
+    pub instance: u32,
+    /// First surface coordinate (weight of a triangle's 2nd corner).
+    pub u: f32,
+    /// Second surface coordinate (weight of a triangle's 3rd corner).
+    pub v: f32,
+    /// Unit geometric normal, as the primitive defines it (not flipped toward the ray).
+    pub normal: Vec3,
+}
+
+/// What anything a ray can hit answers: the lecture's Surface.
+pub trait Surface: Send + Sync {
+    /// Bounds of the whole surface.
+    fn bounds(&self) -> Aabb;
+    /// The closest hit within the ray's interval: least `t`, ties to the least primitive index.
+    fn intersect(&self, ray: &Ray) -> Option<Hit>;
+    /// Whether anything is hit within the ray's interval (for shadow rays).
+    fn occluded(&self, ray: &Ray) -> bool;
+}
+
+/// Primitives and the structure built over them.
+#[derive(Clone, Debug)]
+pub struct Scene<P> {
+    prims: P,
+    accel: Accel,
+    bounds: Aabb,
+    build_ms: f64,
+}
+
+impl<P: Primitives> Scene<P> {
+    /// Builds the structure of `kind` with default settings.
+    #[must_use]
+    pub fn build(prims: P, kind: AccelKind) -> Self {
+        Self::build_with(prims, kind, &BuildConfig::default())
+    }
+
+    /// Builds the structure of `kind` with the given settings; the build
+    /// time counts the boxes' computation too.
+    #[must_use]
+    pub fn build_with(prims: P, kind: AccelKind, config: &BuildConfig) -> Self {
+        let start = Instant::now();
+        let boxes: Vec<Aabb> = (0..prims.len() as u32).map(|i| prims.bounds(i)).collect();
+        let accel = Accel::build(kind, &boxes, config);
+        let build_ms = start.elapsed().as_secs_f64() * 1e3;
+        let bounds = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(*b));
+        Self {
+            prims,
+            accel,
+            bounds,
+            build_ms,
+        }
+    }
+
+    /// The primitives.
+    #[must_use]
+    pub fn prims(&self) -> &P {
+        &self.prims
+    }
+
+    /// The structure.
+    #[must_use]
+    pub fn accel(&self) -> &Accel {
+        &self.accel
+    }
+
+    /// The structure's figures, with its build time.
+    #[must_use]
+    pub fn stats(&self) -> AccelStats {
+        AccelStats {
+            build_ms: self.build_ms,
+            ..self.accel.stats()
+        }
+    }
+
+    /// Closest hit, counting nodes visited and primitives tested.
+    pub fn intersect_counted<C: RayCounter>(&self, ray: &Ray, counter: &mut C) -> Option<Hit> {
+        let mut best: Option<(u32, PrimHit)> = None;
+        let mut tmax = ray.tmax();
+        self.accel.traverse(ray, counter, &mut |prim| {
+            if let Some(h) = self.prims.intersect(prim, ray, tmax) {
+                if h.t < tmax || best.is_none_or(|(b, _)| prim < b) {
+                    tmax = h.t;
+                    best = Some((prim, h));
+                }
+            }
+            tmax
+        });
+        best.map(|(prim, h)| Hit {
+            t: h.t,
+            prim,
+            instance: 0,
+            u: h.u,
+            v: h.v,
+            normal: self.prims.normal(prim, ray, &h),
+        })
+    }
+
+    /// Any hit, counting nodes visited and primitives tested.
+    pub fn occluded_counted<C: RayCounter>(&self, ray: &Ray, counter: &mut C) -> bool {
+        let mut hit = false;
+        self.accel.traverse(ray, counter, &mut |prim| {
+            if self.prims.intersect(prim, ray, ray.tmax()).is_some() {
+                hit = true;
+                f32::NEG_INFINITY
+            } else {
+                ray.tmax()
+            }
+        });
+        hit
+    }
+
+    /// Closest hit and what it cost.
+    pub fn intersect_stats(&self, ray: &Ray) -> (Option<Hit>, CountStats) {
+        let mut c = CountStats::default();
+        (self.intersect_counted(ray, &mut c), c)
+    }
+}
+
+impl<P: Primitives> Surface for Scene<P> {
+    fn bounds(&self) -> Aabb {
+        self.bounds
+    }
+    #[inline]
+    fn intersect(&self, ray: &Ray) -> Option<Hit> {
+        self.intersect_counted(ray, &mut NoStats)
+    }
+    #[inline]
+    fn occluded(&self, ray: &Ray) -> bool {
+        self.occluded_counted(ray, &mut NoStats)
+    }
+}

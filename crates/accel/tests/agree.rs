@@ -1,0 +1,424 @@
+//! Every structure returns exactly what brute force returns: the same
+//! primitive and the same bits of `t`, `u`, `v` for the closest hit, and
+//! the same answer for any hit. Random soups, real meshes, spheres, mixes,
+//! instances, and the hard cases.
+
+use proptest::prelude::*;
+use raymesh_accel::*;
+use raymesh_geometry::{Mat4, Sphere};
+use std::path::PathBuf;
+
+const KINDS: [AccelKind; 6] = [
+    AccelKind::Aabb,
+    AccelKind::BvhMedian,
+    AccelKind::BvhBinned,
+    AccelKind::BvhSweep,
+    AccelKind::Grid,
+    AccelKind::KdTree,
+];
+
+fn key(h: Option<Hit>) -> Option<(u32, u32, u32, u32, u32)> {
+    h.map(|h| {
+        (
+            h.prim,
+            h.instance,
+            h.t.to_bits(),
+            h.u.to_bits(),
+            h.v.to_bits(),
+        )
+    })
+}
+
+/// Checks every kind against brute force on every ray; returns how many rays hit.
+fn check_all<P: Primitives + Clone>(prims: &P, rays: &[Ray]) -> usize {
+    let brute = Scene::build(prims.clone(), AccelKind::Brute);
+    let want: Vec<_> = rays.iter().map(|r| key(brute.intersect(r))).collect();
+    let want_any: Vec<_> = rays.iter().map(|r| brute.occluded(r)).collect();
+    for (w, a) in want.iter().zip(&want_any) {
+        assert_eq!(
+            w.is_some(),
+            *a,
+            "brute force any-hit disagrees with closest-hit"
+        );
+    }
+    for kind in KINDS {
+        let s = Scene::build(prims.clone(), kind);
+        for (i, r) in rays.iter().enumerate() {
+            let got = key(s.intersect(r));
+            assert_eq!(
+                got, want[i],
+                "{kind}: closest hit differs for ray {i}: {r:?}"
+            );
+            assert_eq!(
+                s.occluded(r),
+                want_any[i],
+                "{kind}: any hit differs for ray {i}: {r:?}"
+            );
+        }
+    }
+    want.iter().filter(|w| w.is_some()).count()
+}
+
+fn tri_mesh(tris: &[[Vec3; 3]]) -> TriangleMesh {
+    let positions: Vec<Vec3> = tris.iter().flatten().copied().collect();
+    let triangles = (0..tris.len() as u32)
+        .map(|i| [3 * i, 3 * i + 1, 3 * i + 2])
+        .collect();
+    TriangleMesh::new(positions, triangles)
+}
+
+/// Coordinates on a coarse lattice (shared edges, axis-aligned and coplanar
+/// triangles, rays through vertices) or anywhere.
+fn coord() -> impl Strategy<Value = f32> + Clone {
+    prop_oneof![(-2i32..=2).prop_map(|i| i as f32 * 0.5), -1.0f32..1.0]
+}
+fn point() -> impl Strategy<Value = Vec3> + Clone {
+    (coord(), coord(), coord()).prop_map(|(x, y, z)| Vec3::new(x, y, z))
+}
+fn dir_comp() -> impl Strategy<Value = f32> + Clone {
+    prop_oneof![
+        Just(0.0f32),
+        Just(-0.0),
+        (-1i32..=1).prop_map(|i| i as f32),
+        -1.0f32..1.0
+    ]
+}
+fn direction() -> impl Strategy<Value = Vec3> {
+    (dir_comp(), dir_comp(), dir_comp()).prop_map(|(x, y, z)| Vec3::new(x, y, z))
+}
+
+/// Rays from random origins, plus rays aimed exactly at the vertices and
+/// edge midpoints of the given triangles, from outside and from inside.
+fn rays_for(tris: &[[Vec3; 3]], origins: &[Vec3], dirs: &[Vec3]) -> Vec<Ray> {
+    let mut rays: Vec<Ray> = origins
+        .iter()
+        .zip(dirs)
+        .map(|(o, d)| Ray::infinite(*o * 3.0, *d))
+        .collect();
+    for (k, t) in tris.iter().enumerate().take(12) {
+        let o = origins[k % origins.len()] * 3.0 + Vec3::new(0.1, 2.0, 0.3);
+        for target in [
+            t[0],
+            t[1],
+            t[2],
+            (t[0] + t[1]) * 0.5,
+            (t[0] + t[1] + t[2]) / 3.0,
+        ] {
+            rays.push(Ray::infinite(o, target - o));
+            rays.push(Ray::new(o, target - o, 0.0, 1.0)); // ends exactly at the target
+        }
+    }
+    rays
+}
+
+/// Cases per property; raise with `RAYMESH_PROPTEST_CASES` for a long run.
+fn cases() -> u32 {
+    std::env::var("RAYMESH_PROPTEST_CASES")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(300)
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: cases(), failure_persistence: None, ..ProptestConfig::default() })]
+
+    #[test]
+    fn random_triangle_soups(tris in proptest::collection::vec((point(), point(), point()), 0..80),
+                             origins in proptest::collection::vec(point(), 24),
+                             dirs in proptest::collection::vec(direction(), 24)) {
+        let tris: Vec<[Vec3; 3]> = tris.into_iter().map(|(a, b, c)| [a, b, c]).collect();
+        let rays = rays_for(&tris, &origins, &dirs);
+        check_all(&tri_mesh(&tris), &rays);
+    }
+
+    #[test]
+    fn spheres_and_mixes(spheres in proptest::collection::vec((point(), 0.05f32..0.8), 0..30),
+                         tris in proptest::collection::vec((point(), point(), point()), 0..30),
+                         origins in proptest::collection::vec(point(), 24),
+                         dirs in proptest::collection::vec(direction(), 24)) {
+        let sph: Vec<Sphere> = spheres.iter().map(|&(c, r)| Sphere::new(c, r)).collect();
+        let tris: Vec<[Vec3; 3]> = tris.into_iter().map(|(a, b, c)| [a, b, c]).collect();
+        let mut rays = rays_for(&tris, &origins, &dirs);
+        for (k, s) in sph.iter().enumerate() {
+            rays.push(Ray::infinite(s.center, dirs[k % dirs.len()])); // from inside a sphere
+        }
+        check_all(&Spheres(sph.clone()), &rays);
+        let mut mix: Vec<Shape> = sph.into_iter().map(Shape::Sphere).collect();
+        mix.extend(tris.into_iter().map(Shape::Triangle));
+        check_all(&Shapes(mix), &rays);
+    }
+}
+
+fn data(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../tests/data")
+        .join(name)
+}
+
+fn load(name: &str) -> TriangleMesh {
+    let m = raymesh_mesh::io::read_mesh(data(name)).unwrap();
+    TriangleMesh::new(m.positions.clone(), m.triangles())
+}
+
+/// Deterministic pseudo-random numbers for the real-mesh tests.
+struct Lcg(u64);
+impl Lcg {
+    fn next(&mut self) -> f32 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((self.0 >> 40) as f32) / (1u64 << 24) as f32
+    }
+    fn unit(&mut self) -> Vec3 {
+        Vec3::new(
+            self.next() * 2.0 - 1.0,
+            self.next() * 2.0 - 1.0,
+            self.next() * 2.0 - 1.0,
+        )
+    }
+}
+
+/// Rays of BENCH.md's `random` workload plus rays at vertices, along
+/// edges, from inside the box, and parallel to the axes.
+fn mesh_rays(m: &TriangleMesh, n: usize, seed: u64) -> Vec<Ray> {
+    let b = m.positions.iter().fold(Aabb::EMPTY, |a, p| a.grow(*p));
+    let (c, d) = (b.centroid(), b.diagonal());
+    let mut rng = Lcg(seed);
+    let mut rays = Vec::new();
+    for i in 0..n {
+        let o = c + rng.unit().normalize_or_zero() * 0.75 * d;
+        let p = b.min + (b.max - b.min) * Vec3::new(rng.next(), rng.next(), rng.next());
+        rays.push(Ray::infinite(o, p - o));
+        // At a vertex, and at an edge point, of some triangle.
+        let t = m.triangles[i % m.triangles.len()];
+        let (a, bb) = (m.positions[t[0] as usize], m.positions[t[1] as usize]);
+        rays.push(Ray::infinite(o, a - o));
+        rays.push(Ray::infinite(o, a.lerp(bb, 0.5) - o));
+        // From inside the box, and along an axis.
+        rays.push(Ray::infinite(p, rng.unit()));
+        let axis = [Vec3::X, Vec3::NEG_Y, Vec3::Z][i % 3];
+        rays.push(Ray::infinite(p - axis * d, axis));
+    }
+    rays
+}
+
+#[test]
+fn real_meshes() {
+    for name in [
+        "elephant-with-holes.off",
+        "sphere.ply",
+        "mesh_with_border.off",
+        "double-torus-example.off",
+        "degtri_sliding.off",
+        "cube_quad.off",
+    ] {
+        let m = load(name);
+        let rays = mesh_rays(&m, 300, 7);
+        let hits = check_all(&m, &rays);
+        assert!(
+            hits > rays.len() / 10,
+            "{name}: only {hits} of {} rays hit",
+            rays.len()
+        );
+    }
+}
+
+#[test]
+fn hard_cases() {
+    let o = Vec3::new(0.3, 0.2, -2.0);
+    let dirs = [
+        Vec3::Z,
+        Vec3::new(0.0, 0.0, 1.0),
+        Vec3::new(0.1, -0.05, 1.0),
+        Vec3::X,
+        -Vec3::Z,
+    ];
+    let mut rays: Vec<Ray> = dirs.iter().map(|&d| Ray::infinite(o, d)).collect();
+    // NaN and infinite rays, zero direction, empty interval.
+    rays.push(Ray::infinite(Vec3::NAN, Vec3::Z));
+    rays.push(Ray::infinite(o, Vec3::new(f32::NAN, 0.0, 1.0)));
+    rays.push(Ray::infinite(Vec3::splat(f32::INFINITY), Vec3::Z));
+    rays.push(Ray::infinite(o, Vec3::new(0.0, f32::INFINITY, 1.0)));
+    rays.push(Ray::infinite(o, Vec3::ZERO));
+    rays.push(Ray::new(o, Vec3::Z, 5.0, 1.0));
+    rays.push(Ray::new(o, Vec3::Z, 0.0, f32::NAN));
+
+    let unit = [Vec3::ZERO, Vec3::X, Vec3::Y];
+    // None; one; duplicates; all in one plane; degenerate; huge; tiny.
+    assert_eq!(check_all(&tri_mesh(&[]), &rays), 0);
+    assert!(check_all(&tri_mesh(&[unit]), &rays) > 0);
+    assert!(
+        check_all(
+            &tri_mesh(&[unit, unit, unit, [Vec3::X, Vec3::Y, Vec3::ZERO]]),
+            &rays
+        ) > 0
+    );
+    let plane: Vec<[Vec3; 3]> = (0..50)
+        .map(|i| {
+            let x = (i % 10) as f32 * 0.1;
+            let y = (i / 10) as f32 * 0.1;
+            [
+                Vec3::new(x, y, 0.0),
+                Vec3::new(x + 0.1, y, 0.0),
+                Vec3::new(x, y + 0.1, 0.0),
+            ]
+        })
+        .collect();
+    let mut plane_rays = rays.clone();
+    plane_rays.push(Ray::infinite(Vec3::new(-1.0, 0.05, 0.0), Vec3::X)); // in the plane
+    for i in 0..40 {
+        let p = Vec3::new(i as f32 * 0.025, 0.3, 0.0);
+        plane_rays.push(Ray::infinite(p + Vec3::Z, -Vec3::Z));
+        plane_rays.push(Ray::infinite(
+            Vec3::new(0.1 * (i % 10) as f32, 0.1 * (i / 10) as f32, 1.0),
+            -Vec3::Z,
+        ));
+    }
+    assert!(check_all(&tri_mesh(&plane), &plane_rays) > 0);
+    let degenerate = [[Vec3::ZERO, Vec3::X, Vec3::X * 2.0], [Vec3::ONE; 3], unit];
+    check_all(&tri_mesh(&degenerate), &rays);
+    for scale in [1e30f32, 1e-30, 1e12, 1e-12] {
+        let tris: Vec<[Vec3; 3]> = plane
+            .iter()
+            .map(|t| t.map(|v| v * scale + Vec3::Z * scale))
+            .collect();
+        let rs: Vec<Ray> = (0..40)
+            .map(|i| {
+                let p = Vec3::new(
+                    0.1 * (i % 10) as f32 + 0.03,
+                    0.1 * (i / 10) as f32 + 0.02,
+                    -1.0,
+                ) * scale;
+                Ray::infinite(p, Vec3::Z)
+            })
+            .collect();
+        check_all(&tri_mesh(&tris), &rs);
+    }
+    // Rays starting exactly on split planes and cell boundaries: lattice origins.
+    let grid_tris: Vec<[Vec3; 3]> = (0..64)
+        .map(|i| {
+            let p = Vec3::new((i % 4) as f32, ((i / 4) % 4) as f32, (i / 16) as f32);
+            [p, p + Vec3::X, p + Vec3::Y]
+        })
+        .collect();
+    let mut lattice_rays = Vec::new();
+    for i in 0..64 {
+        let p = Vec3::new((i % 4) as f32, ((i / 4) % 4) as f32, (i / 16) as f32);
+        for d in [
+            Vec3::X,
+            Vec3::NEG_X,
+            Vec3::Z,
+            Vec3::NEG_Z,
+            Vec3::new(1.0, 1.0, 1.0),
+            Vec3::new(-0.3, 0.7, -1.0),
+        ] {
+            lattice_rays.push(Ray::infinite(p + Vec3::new(0.25, 0.25, 0.0), d));
+            lattice_rays.push(Ray::infinite(p, d));
+        }
+    }
+    assert!(check_all(&tri_mesh(&grid_tris), &lattice_rays) > 0);
+}
+
+#[test]
+fn empty_scene_never_hits() {
+    for kind in AccelKind::ALL {
+        let s = Scene::build(TriangleMesh::default(), kind);
+        let r = Ray::infinite(Vec3::ZERO, Vec3::X);
+        assert!(s.intersect(&r).is_none());
+        assert!(!s.occluded(&r));
+        assert!(s.bounds().is_empty());
+    }
+}
+
+#[test]
+fn bvh_builders_make_valid_trees() {
+    let m = load("elephant-with-holes.off");
+    let boxes: Vec<Aabb> = (0..m.len() as u32).map(|i| m.bounds(i)).collect();
+    for b in [
+        BvhBuilder::Median,
+        BvhBuilder::BinnedSah,
+        BvhBuilder::SweepSah,
+    ] {
+        let bvh = b.build(&boxes, &BuildConfig::default());
+        bvh.validate(&boxes)
+            .unwrap_or_else(|e| panic!("{b:?}: {e}"));
+    }
+    // All boxes identical: no SAH split exists, the count fallback must still terminate.
+    let same = vec![Aabb::new(Vec3::ZERO, Vec3::ONE); 1000];
+    for b in [
+        BvhBuilder::Median,
+        BvhBuilder::BinnedSah,
+        BvhBuilder::SweepSah,
+    ] {
+        let bvh = b.build(&same, &BuildConfig::default());
+        bvh.validate(&same).unwrap();
+    }
+}
+
+#[test]
+fn instances_agree_with_brute_top_level() {
+    let m = load("sphere.ply");
+    let objects = vec![
+        Scene::build(m.clone(), AccelKind::BvhSweep),
+        Scene::build(load("cube_quad.off"), AccelKind::Grid),
+    ];
+    let mut instances = Vec::new();
+    for i in 0..40 {
+        let f = i as f32;
+        instances.push(Instance {
+            object: i % 2,
+            transform: Mat4::from_scale_rotation_translation(
+                Vec3::splat(0.3 + 0.05 * (i % 5) as f32),
+                raymesh_geometry::Quat::from_rotation_y(f * 0.7),
+                Vec3::new((i % 7) as f32 - 3.0, (i / 7) as f32 - 3.0, (i % 3) as f32),
+            ),
+        });
+    }
+    let brute = Instances::build(objects.clone(), &instances, AccelKind::Brute).unwrap();
+    let mut rng = Lcg(3);
+    let rays: Vec<Ray> = (0..2000)
+        .map(|_| {
+            let o = rng.unit() * 10.0;
+            Ray::infinite(o, rng.unit() * 3.0 - o * 0.2)
+        })
+        .collect();
+    let want: Vec<_> = rays.iter().map(|r| key(brute.intersect(r))).collect();
+    assert!(want.iter().filter(|w| w.is_some()).count() > 100);
+    for kind in KINDS {
+        let s = Instances::build(objects.clone(), &instances, kind).unwrap();
+        for (i, r) in rays.iter().enumerate() {
+            assert_eq!(key(s.intersect(r)), want[i], "{kind}: ray {i}");
+            assert_eq!(s.occluded(r), want[i].is_some(), "{kind}: ray {i}");
+        }
+    }
+    assert!(Instances::build(
+        objects,
+        &[Instance {
+            object: 5,
+            transform: Mat4::IDENTITY
+        }],
+        AccelKind::Brute
+    )
+    .is_err());
+}
+
+#[test]
+fn stats_are_sane() {
+    let m = load("elephant-with-holes.off");
+    for kind in AccelKind::ALL {
+        let s = Scene::build(m.clone(), kind).stats();
+        assert_eq!(s.name, kind.name());
+        assert!(s.sah_cost > 0.0, "{kind}");
+        if kind != AccelKind::Brute {
+            assert!(s.nodes >= 1 && s.bytes > 0, "{kind}");
+        }
+    }
+    let bvh = Scene::build(m.clone(), AccelKind::BvhSweep);
+    let brute = Scene::build(m.clone(), AccelKind::Brute);
+    let r = Ray::infinite(Vec3::new(0.0, 0.0, 3.0), -Vec3::Z);
+    let (_, c) = bvh.intersect_stats(&r);
+    let (_, cb) = brute.intersect_stats(&r);
+    assert_eq!(cb.prims, m.len() as u64);
+    assert!(c.prims < cb.prims && c.nodes > 0);
+}
