@@ -51,10 +51,14 @@ impl Grid {
                 len: n,
             };
         }
-        // Flat boxes get a thickness so cells have volume.
+        // Flat boxes get a thickness so cells have volume, and the grid's box
+        // is padded so it holds every primitive strictly (`min + (max - min)`
+        // can round below `max`, which would lose hits on the boundary).
         let ext = bounds.extent();
         let floor = ext.max_element().max(f32::MIN_POSITIVE) * 1e-3;
-        let ext = ext.max(Vec3::splat(floor));
+        let pad = ext * 1e-5 + Vec3::splat(bounds.min.abs().max(bounds.max.abs()).max_element() * 1e-6);
+        let bounds = Aabb::new(bounds.min - pad, bounds.max + pad);
+        let ext = bounds.extent().max(Vec3::splat(floor));
         let target = (config.grid_density.max(1e-3) as f64 * n as f64).clamp(1.0, MAX_CELLS as f64);
         let k = (target / (ext.x as f64 * ext.y as f64 * ext.z as f64)).cbrt();
         let mut res = [0u32; 3];
@@ -68,7 +72,7 @@ impl Grid {
         let resv = Vec3::new(res[0] as f32, res[1] as f32, res[2] as f32);
         let cell_size = ext / resv;
         let inv_cell_size = resv / ext;
-        let bounds = Aabb::new(bounds.min, bounds.min + ext);
+        let bounds = Aabb::new(bounds.min, bounds.max.max(bounds.min + ext));
         let mut g = Self {
             bounds,
             res,

@@ -1,3 +1,15 @@
 //! One module per subcommand.
 
 pub mod info;
+pub mod raycast;
+pub mod rays;
+
+/// A rayon pool of `threads` workers (all cores when `None`).
+pub fn thread_pool(threads: Option<usize>) -> anyhow::Result<rayon::ThreadPool> {
+    let mut b = rayon::ThreadPoolBuilder::new();
+    if let Some(n) = threads {
+        anyhow::ensure!(n >= 1, "--threads must be at least 1");
+        b = b.num_threads(n);
+    }
+    Ok(b.build()?)
+}
