@@ -105,7 +105,7 @@ impl Default for BuildConfig {
     fn default() -> Self {
         Self {
             max_leaf: 8,
-            traversal_cost: 1.0,
+            traversal_cost: 3.0,
             grid_density: 3.0,
             bins: 32,
         }

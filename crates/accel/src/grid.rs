@@ -56,7 +56,8 @@ impl Grid {
         // can round below `max`, which would lose hits on the boundary).
         let ext = bounds.extent();
         let floor = ext.max_element().max(f32::MIN_POSITIVE) * 1e-3;
-        let pad = ext * 1e-5 + Vec3::splat(bounds.min.abs().max(bounds.max.abs()).max_element() * 1e-6);
+        let pad =
+            ext * 1e-5 + Vec3::splat(bounds.min.abs().max(bounds.max.abs()).max_element() * 1e-6);
         let bounds = Aabb::new(bounds.min - pad, bounds.max + pad);
         let ext = bounds.extent().max(Vec3::splat(floor));
         let target = (config.grid_density.max(1e-3) as f64 * n as f64).clamp(1.0, MAX_CELLS as f64);

@@ -30,7 +30,7 @@ pub use bvh::{Bvh, BvhBuilder};
 pub use grid::Grid;
 pub use instance::{Instance, Instances};
 pub use kdtree::KdTree;
-pub use prims::{PrimHit, Primitives, Shape, Shapes, Spheres, TriangleMesh};
+pub use prims::{PrimHit, Primitives, Shape, Shapes, Spheres, TriangleMesh, Triangles};
 pub use raymesh_geometry::{Aabb, Ray, Vec3};
 pub use scene::{Hit, Scene, Surface};
 pub use stats::{AccelStats, CountStats, NoStats, RayCounter};

@@ -28,6 +28,16 @@ pub trait Primitives: Send + Sync {
     fn intersect(&self, i: u32, ray: &Ray, tmax: f32) -> Option<PrimHit>;
     /// Unit geometric normal of primitive `i` at a hit (not flipped toward the ray).
     fn normal(&self, i: u32, ray: &Ray, hit: &PrimHit) -> Vec3;
+    /// The same primitives in another order: new primitive `k` is old
+    /// primitive `order[k]`. A scene built over a BVH uses it to store
+    /// primitives in leaf order and drop the permutation's indirection;
+    /// `None` (the default) keeps the indirection.
+    fn reordered(&self, _order: &[u32]) -> Option<Self>
+    where
+        Self: Sized,
+    {
+        None
+    }
 }
 
 /// Triangles sharing one vertex buffer: the lecture's TriangleMesh.
@@ -98,6 +108,61 @@ impl Primitives for TriangleMesh {
         let [a, b, c] = self.corners(i);
         (b - a).cross(c - a).normalize_or_zero()
     }
+    fn reordered(&self, order: &[u32]) -> Option<Self> {
+        Some(Self {
+            positions: self.positions.clone(),
+            triangles: order.iter().map(|&i| self.triangles[i as usize]).collect(),
+        })
+    }
+}
+
+/// Triangles stored by their corners, 36 bytes each: no index buffer to
+/// chase, so a leaf's triangles are one contiguous read once a BVH scene
+/// has put them in leaf order. The fastest layout for ray queries, at the
+/// price of a copy of the mesh.
+#[derive(Clone, Debug, Default)]
+pub struct Triangles(pub Vec<[Vec3; 3]>);
+
+impl Triangles {
+    /// The corners of an indexed mesh's triangles, in the mesh's order.
+    #[must_use]
+    pub fn from_mesh(mesh: &TriangleMesh) -> Self {
+        Self((0..mesh.len() as u32).map(|i| mesh.corners(i)).collect())
+    }
+
+    /// Bytes of the corner buffer.
+    #[must_use]
+    pub fn bytes(&self) -> usize {
+        self.0.len() * 36
+    }
+}
+
+impl Primitives for Triangles {
+    #[inline]
+    fn len(&self) -> usize {
+        self.0.len()
+    }
+    #[inline]
+    fn bounds(&self, i: u32) -> Aabb {
+        let [a, b, c] = self.0[i as usize];
+        Aabb::from_point(a).grow(b).grow(c)
+    }
+    #[inline(always)]
+    fn intersect(&self, i: u32, ray: &Ray, tmax: f32) -> Option<PrimHit> {
+        let [a, b, c] = self.0[i as usize];
+        intersect_triangle(ray, tmax, a, b, c).map(|h| PrimHit {
+            t: h.t,
+            u: h.u,
+            v: h.v,
+        })
+    }
+    fn normal(&self, i: u32, _ray: &Ray, _hit: &PrimHit) -> Vec3 {
+        let [a, b, c] = self.0[i as usize];
+        (b - a).cross(c - a).normalize_or_zero()
+    }
+    fn reordered(&self, order: &[u32]) -> Option<Self> {
+        Some(Self(order.iter().map(|&i| self.0[i as usize]).collect()))
+    }
 }
 
 /// A list of spheres.
@@ -122,6 +187,9 @@ impl Primitives for Spheres {
     }
     fn normal(&self, i: u32, ray: &Ray, hit: &PrimHit) -> Vec3 {
         self.0[i as usize].normal_at(ray.at(hit.t))
+    }
+    fn reordered(&self, order: &[u32]) -> Option<Self> {
+        Some(Self(order.iter().map(|&i| self.0[i as usize]).collect()))
     }
 }
 
@@ -170,6 +238,9 @@ impl Primitives for Shapes {
             Shape::Triangle([a, b, c]) => (*b - *a).cross(*c - *a).normalize_or_zero(),
             Shape::Sphere(s) => s.normal_at(ray.at(hit.t)),
         }
+    }
+    fn reordered(&self, order: &[u32]) -> Option<Self> {
+        Some(Self(order.iter().map(|&i| self.0[i as usize]).collect()))
     }
 }
 

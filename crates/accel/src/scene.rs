@@ -40,6 +40,9 @@ pub struct Scene<P> {
     accel: Accel,
     bounds: Aabb,
     build_ms: f64,
+    /// When the primitives were reordered to the BVH's leaf order: the
+    /// original index of each stored primitive (what hits report).
+    original: Option<Vec<u32>>,
 }
 
 impl<P: Primitives> Scene<P> {
@@ -50,12 +53,21 @@ impl<P: Primitives> Scene<P> {
     }
 
     /// Builds the structure of `kind` with the given settings; the build
-    /// time counts the boxes' computation too.
+    /// time counts the boxes' computation and, for a BVH, putting the
+    /// primitives in leaf order (when their type can be reordered).
     #[must_use]
     pub fn build_with(prims: P, kind: AccelKind, config: &BuildConfig) -> Self {
         let start = Instant::now();
         let boxes: Vec<Aabb> = (0..prims.len() as u32).map(|i| prims.bounds(i)).collect();
-        let accel = Accel::build(kind, &boxes, config);
+        let mut accel = Accel::build(kind, &boxes, config);
+        let mut prims = prims;
+        let mut original = None;
+        if let Accel::Bvh(bvh, _) = &mut accel {
+            if let Some(p) = prims.reordered(bvh.prim_ids()) {
+                prims = p;
+                original = Some(bvh.take_prim_ids());
+            }
+        }
         let build_ms = start.elapsed().as_secs_f64() * 1e3;
         let bounds = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(*b));
         Self {
@@ -63,13 +75,21 @@ impl<P: Primitives> Scene<P> {
             accel,
             bounds,
             build_ms,
+            original,
         }
     }
 
-    /// The primitives.
+    /// The primitives, in storage order (see [`Self::original_index`]).
     #[must_use]
     pub fn prims(&self) -> &P {
         &self.prims
+    }
+
+    /// The index the user gave the primitive stored at `k`.
+    #[inline]
+    #[must_use]
+    pub fn original_index(&self, k: u32) -> u32 {
+        self.original.as_ref().map_or(k, |o| o[k as usize])
     }
 
     /// The structure.
@@ -81,9 +101,11 @@ impl<P: Primitives> Scene<P> {
     /// The structure's figures, with its build time.
     #[must_use]
     pub fn stats(&self) -> AccelStats {
+        let s = self.accel.stats();
         AccelStats {
             build_ms: self.build_ms,
-            ..self.accel.stats()
+            bytes: s.bytes + self.original.as_ref().map_or(0, |o| o.len() * 4),
+            ..s
         }
     }
 
@@ -93,35 +115,56 @@ impl<P: Primitives> Scene<P> {
         let mut tmax = ray.tmax();
         self.accel.traverse(ray, counter, &mut |prim| {
             if let Some(h) = self.prims.intersect(prim, ray, tmax) {
-                if h.t < tmax || best.is_none_or(|(b, _)| prim < b) {
+                // Ties go to the least index the user gave.
+                if h.t < tmax
+                    || best.is_none_or(|(b, _)| self.original_index(prim) < self.original_index(b))
+                {
                     tmax = h.t;
                     best = Some((prim, h));
                 }
             }
             tmax
         });
-        best.map(|(prim, h)| Hit {
-            t: h.t,
-            prim,
-            instance: 0,
-            u: h.u,
-            v: h.v,
-            normal: self.prims.normal(prim, ray, &h),
-        })
+        best.map(|(prim, h)| self.hit(prim, ray, h))
     }
 
     /// Any hit, counting nodes visited and primitives tested.
     pub fn occluded_counted<C: RayCounter>(&self, ray: &Ray, counter: &mut C) -> bool {
-        let mut hit = false;
-        self.accel.traverse(ray, counter, &mut |prim| {
-            if self.prims.intersect(prim, ray, ray.tmax()).is_some() {
-                hit = true;
-                f32::NEG_INFINITY
-            } else {
-                ray.tmax()
-            }
-        });
-        hit
+        self.any_hit_counted(ray, counter).is_some()
+    }
+
+    /// The first hit the traversal finds (not necessarily the closest).
+    pub fn any_hit(&self, ray: &Ray) -> Option<Hit> {
+        self.any_hit_counted(ray, &mut NoStats)
+    }
+
+    /// [`Self::any_hit`], counting nodes visited and primitives tested.
+    pub fn any_hit_counted<C: RayCounter>(&self, ray: &Ray, counter: &mut C) -> Option<Hit> {
+        let mut found: Option<(u32, PrimHit)> = None;
+        self.accel
+            .traverse(
+                ray,
+                counter,
+                &mut |prim| match self.prims.intersect(prim, ray, ray.tmax()) {
+                    Some(h) => {
+                        found = Some((prim, h));
+                        f32::NEG_INFINITY
+                    }
+                    None => ray.tmax(),
+                },
+            );
+        found.map(|(prim, h)| self.hit(prim, ray, h))
+    }
+
+    fn hit(&self, prim: u32, ray: &Ray, h: PrimHit) -> Hit {
+        Hit {
+            t: h.t,
+            prim: self.original_index(prim),
+            instance: 0,
+            u: h.u,
+            v: h.v,
+            normal: self.prims.normal(prim, ray, &h),
+        }
     }
 
     /// Closest hit and what it cost.

@@ -2,6 +2,8 @@
 //! command line. Each subcommand lives in its own module under `cmd/`.
 
 mod cmd;
+mod npy;
+mod workload;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -18,12 +20,18 @@ struct Cli {
 enum Command {
     /// Print counts, bounding box, degenerate triangles and unreferenced vertices of a mesh file.
     Info(cmd::info::Args),
+    /// Cast rays from a .npy file at a mesh through a chosen acceleration structure.
+    Raycast(cmd::raycast::Args),
+    /// Write one of BENCH.md's ray workloads for a mesh as a .npy file.
+    Rays(cmd::rays::Args),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Info(a) => cmd::info::run(&a),
+        Command::Raycast(a) => cmd::raycast::run(&a),
+        Command::Rays(a) => cmd::rays::run(&a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

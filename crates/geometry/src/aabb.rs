@@ -23,6 +23,26 @@ impl Default for Aabb {
 /// conservative under rounding (Ize, "Robust BVH Ray Traversal", JCGT 2013).
 const ROBUST_EXIT: f32 = 1.0 + 2.0 * gamma(3);
 
+/// `a` if `a > b`, else `b`: returns `b` when `a` is NaN (one `maxss`).
+#[inline(always)]
+fn max_nan_second(a: f32, b: f32) -> f32 {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
+/// `a` if `a < b`, else `b`: returns `b` when `a` is NaN (one `minss`).
+#[inline(always)]
+fn min_nan_second(a: f32, b: f32) -> f32 {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
 /// Relative slack added to a ray's upper bound before it culls boxes.
 const CULL_SLACK: f32 = 1e-5;
 
@@ -205,11 +225,14 @@ impl Aabb {
         let (near, far) = self.near_far(octant);
         let tn = (near - origin) * inv_dir;
         let tf = (far - origin) * inv_dir;
-        // f32::max/min return the non-NaN operand: a NaN slab constrains nothing.
-        let entry = tmin.max(tn.x).max(tn.y).max(tn.z);
-        let exit = (tmax.min(tf.x * ROBUST_EXIT))
-            .min(tf.y * ROBUST_EXIT)
-            .min(tf.z * ROBUST_EXIT);
+        // `max_nan_second`/`min_nan_second` keep the accumulator when the
+        // slab's value is NaN: a NaN slab constrains nothing. Each is one
+        // maxss/minss, unlike f32::max, which adds NaN fix-ups.
+        let entry = max_nan_second(tn.x, max_nan_second(tn.y, max_nan_second(tn.z, tmin)));
+        let exit = min_nan_second(
+            tf.x * ROBUST_EXIT,
+            min_nan_second(tf.y * ROBUST_EXIT, min_nan_second(tf.z * ROBUST_EXIT, tmax)),
+        );
         (entry, exit)
     }
 

@@ -2,7 +2,7 @@
 //! They share one top-down recursion and differ only in how a node's
 //! primitives are split.
 
-use super::{Bvh, Node};
+use super::{Bvh, Node, NodePair};
 use crate::BuildConfig;
 use raymesh_geometry::{Aabb, Vec3};
 
@@ -53,10 +53,18 @@ impl BvhBuilder {
             builder: self,
             nodes: Vec::with_capacity(2 * n / config.max_leaf.max(1) + 1),
         };
+        // The root, and its unused sibling: every later pair then starts at
+        // an even index, i.e. in its own cache line.
+        ctx.nodes.push(Node::new(Aabb::EMPTY));
         ctx.nodes.push(Node::new(Aabb::EMPTY));
         ctx.build(0, &mut ids, 0, 1);
+        let pairs = ctx
+            .nodes
+            .chunks_exact(2)
+            .map(|c| NodePair([c[0], c[1]]))
+            .collect();
         Bvh {
-            nodes: ctx.nodes,
+            pairs,
             prim_ids: ids,
         }
     }

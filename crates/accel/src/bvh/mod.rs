@@ -31,6 +31,13 @@ pub struct Node {
 
 const _: () = assert!(std::mem::size_of::<Node>() == 32);
 
+/// Two sibling nodes in one 64-byte cache line: a traversal that tests
+/// both children of a node reads one line. The root shares its pair with
+/// an unused node.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[repr(C, align(64))]
+pub(crate) struct NodePair(pub(crate) [Node; 2]);
+
 impl Node {
     fn new(b: Aabb) -> Self {
         Self {
@@ -59,15 +66,25 @@ impl Node {
 /// A BVH: nodes (root first) and the primitive permutation leaves index into.
 #[derive(Clone, Debug, Default)]
 pub struct Bvh {
-    nodes: Vec<Node>,
+    /// Node `i` is `pairs[i / 2].0[i % 2]`; node 0 is the root, node 1 unused.
+    pairs: Vec<NodePair>,
+    /// Leaf slot → primitive; empty once the owner has reordered its
+    /// primitives to match (then slot `k` is primitive `k`).
     prim_ids: Vec<u32>,
 }
 
 impl Bvh {
-    /// The nodes, root first (empty for no primitives).
+    /// The nodes, root first, then the root's unused sibling, then sibling
+    /// pairs (empty for no primitives).
     #[must_use]
-    pub fn nodes(&self) -> &[Node] {
-        &self.nodes
+    pub fn nodes(&self) -> Vec<Node> {
+        self.pairs.iter().flat_map(|p| p.0).collect()
+    }
+
+    /// Node `i`.
+    #[inline(always)]
+    fn node(&self, i: u32) -> &Node {
+        &self.pairs[(i >> 1) as usize].0[(i & 1) as usize]
     }
 
     /// The primitive permutation: leaf `(index, count)` holds
@@ -79,19 +96,25 @@ impl Bvh {
     }
 
     pub(crate) fn bounds(&self) -> Aabb {
-        self.nodes.first().map_or(Aabb::EMPTY, Node::bounds)
+        self.pairs.first().map_or(Aabb::EMPTY, |p| p.0[0].bounds())
+    }
+
+    /// Hands the permutation to an owner that stores its primitives in leaf
+    /// order; from then on leaves name primitives by slot.
+    pub(crate) fn take_prim_ids(&mut self) -> Vec<u32> {
+        std::mem::take(&mut self.prim_ids)
     }
 
     /// Depth of the deepest leaf (1 for a single leaf, 0 for an empty tree).
     #[must_use]
     pub fn depth(&self) -> usize {
-        if self.nodes.is_empty() {
+        if self.pairs.is_empty() {
             return 0;
         }
         let mut max = 0;
         let mut stack = vec![(0usize, 1usize)];
         while let Some((i, d)) = stack.pop() {
-            let n = &self.nodes[i];
+            let n = self.node(i as u32);
             if n.is_leaf() {
                 max = max.max(d);
             } else {
@@ -103,15 +126,23 @@ impl Bvh {
     }
 
     pub(crate) fn stats(&self) -> AccelStats {
-        let leaves = self.nodes.iter().filter(|n| n.is_leaf()).count();
+        let nodes = &self.nodes();
+        // Node 1 is the root's unused sibling.
+        let used = || {
+            nodes
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| *i != 1)
+                .map(|(_, n)| n)
+        };
+        let leaves = used().filter(|n| n.is_leaf()).count();
         let root_area = self.bounds().half_area() as f64;
-        let sah_cost = if self.nodes.is_empty() {
+        let sah_cost = if nodes.is_empty() {
             0.0
         } else if root_area <= 0.0 {
-            self.prim_ids.len() as f64
+            used().filter(|n| n.is_leaf()).map(|n| n.count as f64).sum()
         } else {
-            self.nodes
-                .iter()
+            used()
                 .map(|n| {
                     let a = n.bounds().half_area() as f64 / root_area;
                     if n.is_leaf() {
@@ -123,10 +154,10 @@ impl Bvh {
                 .sum()
         };
         AccelStats {
-            nodes: self.nodes.len(),
+            nodes: nodes.len().saturating_sub(1),
             leaves,
             depth: self.depth(),
-            bytes: self.nodes.len() * std::mem::size_of::<Node>() + self.prim_ids.len() * 4,
+            bytes: self.pairs.len() * std::mem::size_of::<NodePair>() + self.prim_ids.len() * 4,
             sah_cost,
             ..AccelStats::default()
         }
@@ -136,19 +167,20 @@ impl Bvh {
     /// in exactly one leaf and inside its box, indices in range. For tests.
     pub fn validate(&self, boxes: &[Aabb]) -> Result<(), String> {
         if boxes.is_empty() {
-            return if self.nodes.is_empty() {
+            return if self.pairs.is_empty() {
                 Ok(())
             } else {
                 Err("nodes without primitives".into())
             };
         }
+        let nodes = self.nodes();
         let mut seen = vec![false; boxes.len()];
         let mut stack = vec![(0usize, 1usize)];
         while let Some((i, depth)) = stack.pop() {
             if depth > STACK_SIZE {
                 return Err(format!("depth {depth} exceeds the traversal stack"));
             }
-            let n = self.nodes.get(i).ok_or(format!("node {i} out of range"))?;
+            let n = nodes.get(i).ok_or(format!("node {i} out of range"))?;
             let b = n.bounds();
             if n.is_leaf() {
                 let range = n.index as usize..(n.index + n.count) as usize;
@@ -163,11 +195,11 @@ impl Bvh {
                 }
             } else {
                 let c = n.index as usize;
-                if c + 1 >= self.nodes.len() || c <= i {
+                if c + 1 >= nodes.len() || c <= i || c % 2 != 0 {
                     return Err(format!("node {i} has bad children {c}"));
                 }
                 for k in [c, c + 1] {
-                    let cb = self.nodes[k].bounds();
+                    let cb = nodes[k].bounds();
                     if !cb.is_empty() && b.union(cb) != b {
                         return Err(format!("child {k} sticks out of node {i}"));
                     }
@@ -184,7 +216,7 @@ impl Bvh {
     /// Closest-first traversal (any-hit too: the leaf returns `-inf` to stop).
     #[inline]
     pub(crate) fn traverse<C: RayCounter>(&self, ray: &Ray, counter: &mut C, leaf: &mut impl Leaf) {
-        let Some(root) = self.nodes.first() else {
+        let Some(root) = self.pairs.first().map(|p| &p.0[0]) else {
             return;
         };
         let (o, inv, oct, tmin) = (ray.origin(), ray.inv_dir(), ray.octant(), ray.tmin());
@@ -199,16 +231,27 @@ impl Bvh {
         loop {
             counter.node();
             if node.is_leaf() {
-                for &p in &self.prim_ids[node.index as usize..(node.index + node.count) as usize] {
-                    counter.prim();
-                    tmax = leaf(p);
-                    if tmax < tmin {
-                        return;
+                let range = node.index..node.index + node.count;
+                if self.prim_ids.is_empty() {
+                    for p in range {
+                        counter.prim();
+                        tmax = leaf(p);
+                        if tmax < tmin {
+                            return;
+                        }
+                    }
+                } else {
+                    for &p in &self.prim_ids[range.start as usize..range.end as usize] {
+                        counter.prim();
+                        tmax = leaf(p);
+                        if tmax < tmin {
+                            return;
+                        }
                     }
                 }
             } else {
-                let l = &self.nodes[node.index as usize];
-                let r = &self.nodes[node.index as usize + 1];
+                let pair = &self.pairs[(node.index >> 1) as usize].0;
+                let (l, r) = (&pair[0], &pair[1]);
                 let bound = cull_bound(tmax);
                 let (l0, l1) = l.bounds().slab(o, inv, oct, tmin, bound);
                 let (r0, r1) = r.bounds().slab(o, inv, oct, tmin, bound);
@@ -239,7 +282,7 @@ impl Bvh {
                 sp -= 1;
                 let (i, entry) = stack[sp];
                 if entry <= cull_bound(tmax) {
-                    node = &self.nodes[i as usize];
+                    node = self.node(i);
                     break;
                 }
             }

@@ -1,0 +1,194 @@
+//! `raymesh raycast MESH --rays RAYS.npy [--out HITS.npy] [--accel NAME] [--any-hit] [--threads N] [--repeat R] [--json] [--stats]`.
+
+use crate::npy::{self, HitRecord};
+use anyhow::{Context, Result};
+use raymesh_accel::{AccelKind, CountStats, Ray, Scene, Surface, TriangleMesh, Triangles};
+use raymesh_mesh::io::read_mesh;
+use rayon::prelude::*;
+use serde::Serialize;
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// Arguments of `raymesh raycast`.
+#[derive(clap::Args)]
+pub struct Args {
+    /// Mesh file (.obj, .off, .ply, .stl); polygons are fan-triangulated in file order.
+    pub mesh: PathBuf,
+    /// Rays: a float32 (N, 8) .npy array, columns ox oy oz tmin dx dy dz tmax.
+    #[arg(long)]
+    pub rays: PathBuf,
+    /// Write hits here: (N,) records t <f4, prim <i4, u <f4, v <f4; a miss is t = inf, prim = -1.
+    #[arg(long, short = 'o')]
+    pub out: Option<PathBuf>,
+    /// Acceleration structure: brute, aabb, bvh-median, bvh-binned, bvh-sweep, bvh (our fastest), grid, kdtree.
+    #[arg(long, default_value = "bvh")]
+    pub accel: AccelKind,
+    /// Any-hit queries (shadow rays): a hit record names the first hit found, not the closest.
+    #[arg(long)]
+    pub any_hit: bool,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Trace the rays this many times and report the best time.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
+    pub repeat: u32,
+    /// Print one JSON object instead of a table.
+    #[arg(long)]
+    pub json: bool,
+    /// Also count mean nodes visited and primitives tested per ray (in a separate, untimed pass).
+    #[arg(long)]
+    pub stats: bool,
+}
+
+/// The `--json` object.
+#[derive(Serialize)]
+struct Report {
+    accel: &'static str,
+    triangles: usize,
+    rays: usize,
+    hits: usize,
+    build_ms: f64,
+    trace_ms: f64,
+    mrays_per_s: f64,
+    bytes_per_triangle: f64,
+    nodes: usize,
+    depth: usize,
+    sah_cost: f64,
+    any_hit: bool,
+    threads: usize,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    nodes_per_ray: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    prims_per_ray: Option<f64>,
+}
+
+/// Rays per parallel task: small enough to balance, large enough to amortize.
+const CHUNK: usize = 1024;
+
+/// Traces every ray, in parallel, into hit records.
+pub fn trace(scene: &Scene<Triangles>, rays: &[Ray], any_hit: bool, out: &mut [HitRecord]) {
+    out.par_chunks_mut(CHUNK)
+        .zip(rays.par_chunks(CHUNK))
+        .for_each(|(out, rays)| {
+            for (o, r) in out.iter_mut().zip(rays) {
+                let h = if any_hit {
+                    scene.any_hit(r)
+                } else {
+                    scene.intersect(r)
+                };
+                *o = h.map_or(HitRecord::MISS, |h| HitRecord {
+                    t: h.t,
+                    prim: h.prim as i32,
+                    u: h.u,
+                    v: h.v,
+                });
+            }
+        });
+}
+
+/// Mean nodes visited and primitives tested per ray.
+pub fn count(scene: &Scene<Triangles>, rays: &[Ray], any_hit: bool) -> (f64, f64) {
+    let total = rays
+        .par_chunks(CHUNK)
+        .map(|rays| {
+            let mut c = CountStats::default();
+            for r in rays {
+                if any_hit {
+                    scene.occluded_counted(r, &mut c);
+                } else {
+                    scene.intersect_counted(r, &mut c);
+                }
+            }
+            c
+        })
+        .reduce(CountStats::default, |a, b| CountStats {
+            nodes: a.nodes + b.nodes,
+            prims: a.prims + b.prims,
+        });
+    let n = rays.len().max(1) as f64;
+    (total.nodes as f64 / n, total.prims as f64 / n)
+}
+
+/// Runs the command.
+pub fn run(args: &Args) -> Result<()> {
+    let pool = crate::cmd::thread_pool(args.threads)?;
+    let threads = pool.current_num_threads();
+    let mesh = read_mesh(&args.mesh)?;
+    let rays = npy::read_rays(&args.rays)?;
+    let tris = Triangles::from_mesh(&TriangleMesh::new(mesh.positions.clone(), mesh.triangles()));
+    let ntri = tris.0.len();
+    let copy_bytes = tris.bytes();
+    let scene = pool.install(|| Scene::build(tris, args.accel));
+    let mut stats = scene.stats();
+    // The corner copy is part of what the structure costs (the mesh's own buffers are not).
+    stats.bytes += copy_bytes;
+    let mut hits = vec![HitRecord::MISS; rays.len()];
+    let mut best = f64::INFINITY;
+    for _ in 0..args.repeat {
+        let start = Instant::now();
+        pool.install(|| trace(&scene, &rays, args.any_hit, &mut hits));
+        best = best.min(start.elapsed().as_secs_f64() * 1e3);
+    }
+    let counted = args
+        .stats
+        .then(|| pool.install(|| count(&scene, &rays, args.any_hit)));
+    if let Some(out) = &args.out {
+        let f = std::fs::File::create(out)
+            .with_context(|| format!("{}: cannot create", out.display()))?;
+        let mut w = std::io::BufWriter::new(f);
+        npy::write_hits(&mut w, &hits)
+            .and_then(|()| std::io::Write::flush(&mut w))
+            .with_context(|| format!("{}: cannot write", out.display()))?;
+    }
+    let nhits = hits.iter().filter(|h| h.prim >= 0).count();
+    let report = Report {
+        accel: stats.name,
+        triangles: ntri,
+        rays: rays.len(),
+        hits: nhits,
+        build_ms: stats.build_ms,
+        trace_ms: best,
+        mrays_per_s: if best > 0.0 {
+            rays.len() as f64 / best / 1e3
+        } else {
+            0.0
+        },
+        bytes_per_triangle: stats.bytes as f64 / ntri.max(1) as f64,
+        nodes: stats.nodes,
+        depth: stats.depth,
+        sah_cost: stats.sah_cost,
+        any_hit: args.any_hit,
+        threads,
+        nodes_per_ray: counted.map(|c| c.0),
+        prims_per_ray: counted.map(|c| c.1),
+    };
+    if args.json {
+        println!("{}", serde_json::to_string(&report)?);
+    } else {
+        println!(
+            "structure          {} ({} threads{})",
+            report.accel,
+            threads,
+            if args.any_hit { ", any hit" } else { "" }
+        );
+        println!("triangles          {}", report.triangles);
+        println!("rays               {} ({} hit)", report.rays, report.hits);
+        println!("build              {:.2} ms", report.build_ms);
+        println!(
+            "trace (best of {})  {:.2} ms = {:.2} Mrays/s",
+            args.repeat, report.trace_ms, report.mrays_per_s
+        );
+        println!(
+            "structure size     {:.1} bytes/triangle, {} nodes, depth {}",
+            report.bytes_per_triangle, report.nodes, report.depth
+        );
+        println!("SAH cost           {:.2}", report.sah_cost);
+        if let (Some(n), Some(p)) = (report.nodes_per_ray, report.prims_per_ray) {
+            println!("per ray            {n:.1} nodes visited, {p:.1} triangles tested");
+        }
+        if let Some(out) = &args.out {
+            println!("hits written to    {}", out.display());
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,54 @@
+//! `raymesh rays MESH --workload NAME [--size N] [--seed S] -o RAYS.npy`: the
+//! ray workloads of BENCH.md as .npy files, for `raycast` and for peers.
+
+use crate::npy;
+use crate::workload::{make_rays, Workload};
+use anyhow::{bail, Context, Result};
+use raymesh_accel::{AccelKind, Scene, TriangleMesh};
+use raymesh_mesh::io::read_mesh;
+use std::path::PathBuf;
+
+/// Arguments of `raymesh rays`.
+#[derive(clap::Args)]
+pub struct Args {
+    /// Mesh file the workload is defined from (its bounding box, and hits for diffuse and shadow rays).
+    pub mesh: PathBuf,
+    /// primary, random, diffuse or shadow (see ../shared/BENCH.md).
+    #[arg(long)]
+    pub workload: Workload,
+    /// Image width and height (random: the square root of the ray count).
+    #[arg(long, default_value_t = 1024)]
+    pub size: u32,
+    /// Seed of the random workloads.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Output .npy file (overwritten if it exists).
+    #[arg(long, short = 'o')]
+    pub out: PathBuf,
+}
+
+/// Runs the command.
+pub fn run(args: &Args) -> Result<()> {
+    if args.size == 0 || args.size > 16384 {
+        bail!("--size must be in 1..=16384");
+    }
+    let mesh = read_mesh(&args.mesh)?;
+    let scene = Scene::build(
+        TriangleMesh::new(mesh.positions.clone(), mesh.triangles()),
+        AccelKind::FASTEST_BVH,
+    );
+    let rays = make_rays(args.workload, &scene, args.size, args.seed);
+    let f = std::fs::File::create(&args.out)
+        .with_context(|| format!("{}: cannot create", args.out.display()))?;
+    let mut w = std::io::BufWriter::new(f);
+    npy::write_rays(&mut w, &rays)
+        .and_then(|()| std::io::Write::flush(&mut w))
+        .with_context(|| format!("{}: cannot write", args.out.display()))?;
+    eprintln!(
+        "wrote {} {} rays to {}",
+        rays.len(),
+        args.workload.name(),
+        args.out.display()
+    );
+    Ok(())
+}

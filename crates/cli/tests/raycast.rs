@@ -1,0 +1,174 @@
+//! End-to-end tests of `raymesh rays` and `raymesh raycast`.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn raymesh() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_raymesh"))
+}
+
+fn data(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../tests/data")
+        .join(name)
+}
+
+fn tmpdir(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("raymesh-{tag}-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn run_ok(cmd: &mut Command) -> String {
+    let out = cmd.output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).unwrap()
+}
+
+/// The data part of a .npy file (after the header).
+fn npy_data(path: &Path) -> Vec<u8> {
+    let b = std::fs::read(path).unwrap();
+    let hlen = u16::from_le_bytes([b[8], b[9]]) as usize;
+    b[10 + hlen..].to_vec()
+}
+
+#[test]
+fn every_structure_writes_the_same_hits() {
+    let dir = tmpdir("raycast");
+    let mesh = data("elephant-with-holes.off");
+    for w in ["primary", "random", "diffuse", "shadow"] {
+        let rays = dir.join(format!("{w}.npy"));
+        run_ok(
+            raymesh()
+                .arg("rays")
+                .arg(&mesh)
+                .args(["--workload", w, "--size", "48", "-o"])
+                .arg(&rays),
+        );
+        let mut reference: Option<Vec<u8>> = None;
+        for accel in [
+            "brute",
+            "aabb",
+            "bvh-median",
+            "bvh-binned",
+            "bvh-sweep",
+            "bvh",
+            "grid",
+            "kdtree",
+        ] {
+            let out = dir.join(format!("{w}-{accel}.npy"));
+            let json = run_ok(
+                raymesh()
+                    .arg("raycast")
+                    .arg(&mesh)
+                    .arg("--rays")
+                    .arg(&rays)
+                    .args(["--accel", accel, "--json", "--out"])
+                    .arg(&out),
+            );
+            let v: serde_json::Value = serde_json::from_str(&json).unwrap();
+            for key in [
+                "accel",
+                "triangles",
+                "rays",
+                "hits",
+                "build_ms",
+                "trace_ms",
+                "mrays_per_s",
+                "bytes_per_triangle",
+                "nodes",
+                "depth",
+                "sah_cost",
+            ] {
+                assert!(v.get(key).is_some(), "{accel}: no '{key}' in {json}");
+            }
+            assert_eq!(v["triangles"], 4463);
+            let hits = npy_data(&out);
+            match &reference {
+                None => {
+                    assert!(v["hits"].as_u64().unwrap() > 0, "{w}: nothing hit");
+                    reference = Some(hits);
+                }
+                Some(r) => assert!(r == &hits, "{w}: {accel} wrote other hits than brute force"),
+            }
+        }
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn any_hit_agrees_on_what_is_hit() {
+    let dir = tmpdir("anyhit");
+    let mesh = data("sphere.ply");
+    let rays = dir.join("r.npy");
+    run_ok(
+        raymesh()
+            .arg("rays")
+            .arg(&mesh)
+            .args(["--workload", "random", "--size", "40", "-o"])
+            .arg(&rays),
+    );
+    let count = |extra: &[&str]| -> u64 {
+        let json = run_ok(
+            raymesh()
+                .arg("raycast")
+                .arg(&mesh)
+                .arg("--rays")
+                .arg(&rays)
+                .args(["--json", "--threads", "2"])
+                .args(extra),
+        );
+        serde_json::from_str::<serde_json::Value>(&json).unwrap()["hits"]
+            .as_u64()
+            .unwrap()
+    };
+    let closest = count(&[]);
+    assert!(closest > 0);
+    for accel in ["brute", "bvh", "grid", "kdtree"] {
+        assert_eq!(count(&["--any-hit", "--accel", accel]), closest, "{accel}");
+    }
+    let table = run_ok(
+        raymesh()
+            .arg("raycast")
+            .arg(&mesh)
+            .arg("--rays")
+            .arg(&rays)
+            .args(["--stats", "--repeat", "2"]),
+    );
+    assert!(table.contains("nodes visited"), "{table}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn bad_inputs_are_clear_errors() {
+    let dir = tmpdir("badrays");
+    let mesh = data("tetrahedron.off");
+    let bad = dir.join("bad.npy");
+    std::fs::write(&bad, b"\x93NUMPY\x01\x00\x46\x00{'descr': '<f8', 'fortran_order': False, 'shape': (1, 8), }          \n").unwrap();
+    let out = raymesh()
+        .arg("raycast")
+        .arg(&mesh)
+        .arg("--rays")
+        .arg(&bad)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("bad.npy") && err.contains("dtype is '<f8'"),
+        "{err}"
+    );
+    let out = raymesh()
+        .arg("raycast")
+        .arg(&mesh)
+        .args(["--rays", "x.npy", "--accel", "octree"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("unknown structure 'octree'"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
