@@ -34,6 +34,8 @@ struct Ctx<'a> {
     config: &'a BuildConfig,
     builder: BvhBuilder,
     nodes: Vec<Node>,
+    /// Scratch bins of the binned builder, `MAX_BINS` per axis, reused by every node.
+    bins: Vec<(Aabb, u32)>,
 }
 
 impl BvhBuilder {
@@ -51,13 +53,15 @@ impl BvhBuilder {
             centroids: boxes.iter().map(Aabb::centroid).collect(),
             config,
             builder: self,
-            nodes: Vec::with_capacity(2 * n / config.max_leaf.max(1) + 1),
+            nodes: Vec::with_capacity(2 * n / config.max_leaf.max(1) + 2),
+            bins: vec![(Aabb::EMPTY, 0); 3 * MAX_BINS],
         };
         // The root, and its unused sibling: every later pair then starts at
         // an even index, i.e. in its own cache line.
         ctx.nodes.push(Node::new(Aabb::EMPTY));
         ctx.nodes.push(Node::new(Aabb::EMPTY));
-        ctx.build(0, &mut ids, 0, 1);
+        let (bounds, cbounds) = ctx.bounds_pair(&ids);
+        ctx.build(0, &mut ids, 0, 1, bounds, cbounds);
         let pairs = ctx
             .nodes
             .chunks_exact(2)
@@ -71,31 +75,40 @@ impl BvhBuilder {
 }
 
 impl Ctx<'_> {
-    fn bounds(&self, ids: &[u32]) -> Aabb {
-        ids.iter()
-            .fold(Aabb::EMPTY, |b, &i| b.union(self.boxes[i as usize]))
+    /// Boxes of the primitives and of their centroids, in one pass.
+    fn bounds_pair(&self, ids: &[u32]) -> (Aabb, Aabb) {
+        ids.iter().fold((Aabb::EMPTY, Aabb::EMPTY), |(b, c), &i| {
+            (
+                b.union(self.boxes[i as usize]),
+                c.grow(self.centroids[i as usize]),
+            )
+        })
     }
 
-    fn centroid_bounds(&self, ids: &[u32]) -> Aabb {
-        ids.iter()
-            .fold(Aabb::EMPTY, |b, &i| b.grow(self.centroids[i as usize]))
-    }
-
-    /// Builds node `node` over `ids`, which start at `offset` in the permutation.
-    fn build(&mut self, node: usize, ids: &mut [u32], offset: u32, depth: usize) {
-        let bounds = self.bounds(ids);
+    /// Builds node `node` over `ids`, which start at `offset` in the
+    /// permutation; `bounds` and `cbounds` are the boxes of the primitives
+    /// and of their centroids.
+    fn build(
+        &mut self,
+        node: usize,
+        ids: &mut [u32],
+        offset: u32,
+        depth: usize,
+        bounds: Aabb,
+        cbounds: Aabb,
+    ) {
         self.nodes[node] = Node::new(bounds);
         let split = if ids.len() <= 1 {
             None
         } else if depth >= SAH_DEPTH_LIMIT {
-            Some(self.split_by_count(ids))
+            Some(self.split_by_count(ids, cbounds))
         } else {
             match self.builder {
                 BvhBuilder::Median => {
                     (ids.len() > MEDIAN_LEAF).then(|| self.split_median(ids, (depth - 1) % 3))
                 }
-                BvhBuilder::BinnedSah => self.split_binned(ids, bounds),
-                BvhBuilder::SweepSah => self.split_sweep(ids, bounds),
+                BvhBuilder::BinnedSah => self.split_binned(ids, bounds, cbounds),
+                BvhBuilder::SweepSah => self.split_sweep(ids, bounds, cbounds),
             }
         };
         match split {
@@ -110,8 +123,10 @@ impl Ctx<'_> {
                 self.nodes.push(Node::new(Aabb::EMPTY));
                 self.nodes.push(Node::new(Aabb::EMPTY));
                 let (left, right) = ids.split_at_mut(mid);
-                self.build(first, left, offset, depth + 1);
-                self.build(first + 1, right, offset + mid as u32, depth + 1);
+                let (lb, lc) = self.bounds_pair(left);
+                let (rb, rc) = self.bounds_pair(right);
+                self.build(first, left, offset, depth + 1, lb, lc);
+                self.build(first + 1, right, offset + mid as u32, depth + 1, rb, rc);
             }
         }
     }
@@ -128,15 +143,15 @@ impl Ctx<'_> {
 
     /// Median split on the longest centroid axis: the fallback that always
     /// makes progress.
-    fn split_by_count(&self, ids: &mut [u32]) -> usize {
-        let axis = self.centroid_bounds(ids).longest_axis();
-        self.split_median(ids, axis)
+    fn split_by_count(&self, ids: &mut [u32], cbounds: Aabb) -> usize {
+        self.split_median(ids, cbounds.longest_axis())
     }
 
     /// Leaf or split, given the best split's SAH cost (relative to the node's area).
     fn decide(
         &self,
         ids: &mut [u32],
+        cbounds: Aabb,
         best: Option<(f32, usize)>,
         area: f32,
         apply: impl FnOnce(&mut [u32]) -> usize,
@@ -152,43 +167,54 @@ impl Ctx<'_> {
                     None
                 }
             }
-            _ if n > self.config.max_leaf => Some(self.split_by_count(ids)),
+            _ if n > self.config.max_leaf => Some(self.split_by_count(ids, cbounds)),
             _ => None,
         }
     }
 
-    fn split_binned(&self, ids: &mut [u32], bounds: Aabb) -> Option<usize> {
-        let nb = self.config.bins.clamp(2, 256);
-        let cb = self.centroid_bounds(ids);
+    /// Binned SAH: one pass bins the centroids on all three axes at once,
+    /// then the cheapest bin boundary wins.
+    fn split_binned(&mut self, ids: &mut [u32], bounds: Aabb, cb: Aabb) -> Option<usize> {
+        // Small nodes need few bins: twice their size is plenty.
+        let nb = self.config.bins.min(2 * ids.len()).clamp(2, MAX_BINS);
         let ext = cb.extent();
-        // (cost, axis, bin boundary)
+        let scale = Vec3::select(
+            ext.cmpgt(Vec3::ZERO),
+            Vec3::splat(nb as f32) / ext,
+            Vec3::ZERO,
+        );
+        let mut bins = std::mem::take(&mut self.bins);
+        for axis in 0..3 {
+            bins[axis * MAX_BINS..axis * MAX_BINS + nb].fill((Aabb::EMPTY, 0));
+        }
+        for &i in ids.iter() {
+            let b = self.boxes[i as usize];
+            let k = bin3(self.centroids[i as usize], cb.min, scale, nb);
+            for axis in 0..3 {
+                let bin = &mut bins[axis * MAX_BINS + k[axis]];
+                bin.0 = bin.0.union(b);
+                bin.1 += 1;
+            }
+        }
+        // (cost, axis, first bin of the right side)
         let mut best: Option<(f32, usize, usize)> = None;
-        let mut bin_box = vec![Aabb::EMPTY; nb];
-        let mut bin_count = vec![0u32; nb];
-        let mut right_area = vec![0.0f32; nb];
+        let mut right_area = [0.0f32; MAX_BINS];
         for axis in 0..3 {
             if !(ext[axis] > 0.0) {
                 continue;
             }
-            let scale = nb as f32 / ext[axis];
-            bin_box.fill(Aabb::EMPTY);
-            bin_count.fill(0);
-            for &i in ids.iter() {
-                let b = bin_of(self.centroids[i as usize][axis], cb.min[axis], scale, nb);
-                bin_box[b] = bin_box[b].union(self.boxes[i as usize]);
-                bin_count[b] += 1;
-            }
+            let bins = &bins[axis * MAX_BINS..(axis + 1) * MAX_BINS];
             let mut acc = Aabb::EMPTY;
             for b in (1..nb).rev() {
-                acc = acc.union(bin_box[b]);
+                acc = acc.union(bins[b].0);
                 right_area[b] = acc.half_area();
             }
             let (mut lbox, mut lcount) = (Aabb::EMPTY, 0u32);
             let mut rcount = ids.len() as u32;
             for b in 1..nb {
-                lbox = lbox.union(bin_box[b - 1]);
-                lcount += bin_count[b - 1];
-                rcount -= bin_count[b - 1];
+                lbox = lbox.union(bins[b - 1].0);
+                lcount += bins[b - 1].1;
+                rcount -= bins[b - 1].1;
                 if lcount == 0 || rcount == 0 {
                     continue;
                 }
@@ -198,18 +224,23 @@ impl Ctx<'_> {
                 }
             }
         }
-        let area = bounds.half_area();
+        self.bins = bins;
         let centroids = &self.centroids;
-        self.decide(ids, best.map(|(c, a, _)| (c, a)), area, |ids| {
-            let (_, axis, boundary) = best.expect("a split was found");
-            let scale = nb as f32 / ext[axis];
-            partition(ids, |&i| {
-                bin_of(centroids[i as usize][axis], cb.min[axis], scale, nb) < boundary
-            })
-        })
+        self.decide(
+            ids,
+            cb,
+            best.map(|(c, a, _)| (c, a)),
+            bounds.half_area(),
+            |ids| {
+                let (_, axis, boundary) = best.expect("a split was found");
+                partition(ids, |&i| {
+                    bin3(centroids[i as usize], cb.min, scale, nb)[axis] < boundary
+                })
+            },
+        )
     }
 
-    fn split_sweep(&self, ids: &mut [u32], bounds: Aabb) -> Option<usize> {
+    fn split_sweep(&self, ids: &mut [u32], bounds: Aabb, cbounds: Aabb) -> Option<usize> {
         let n = ids.len();
         let c = &self.centroids;
         let mut best: Option<(f32, usize, usize)> = None;
@@ -236,21 +267,36 @@ impl Ctx<'_> {
             }
         }
         let area = bounds.half_area();
-        self.decide(ids, best.map(|(cst, a, _)| (cst, a)), area, |ids| {
-            let (_, axis, k) = best.expect("a split was found");
-            ids.sort_unstable_by(|&a, &b| {
-                c[a as usize][axis]
-                    .total_cmp(&c[b as usize][axis])
-                    .then(a.cmp(&b))
-            });
-            k
-        })
+        self.decide(
+            ids,
+            cbounds,
+            best.map(|(cst, a, _)| (cst, a)),
+            area,
+            |ids| {
+                let (_, axis, k) = best.expect("a split was found");
+                ids.sort_unstable_by(|&a, &b| {
+                    c[a as usize][axis]
+                        .total_cmp(&c[b as usize][axis])
+                        .then(a.cmp(&b))
+                });
+                k
+            },
+        )
     }
 }
 
-#[inline]
-fn bin_of(c: f32, min: f32, scale: f32, nb: usize) -> usize {
-    (((c - min) * scale) as usize).min(nb - 1)
+/// Most bins per axis of the binned builder.
+const MAX_BINS: usize = 64;
+
+/// Bin of a centroid on each axis (`as` saturates, so NaN lands in bin 0).
+#[inline(always)]
+fn bin3(c: Vec3, min: Vec3, scale: Vec3, nb: usize) -> [usize; 3] {
+    let f = (c - min) * scale;
+    [
+        (f.x as usize).min(nb - 1),
+        (f.y as usize).min(nb - 1),
+        (f.z as usize).min(nb - 1),
+    ]
 }
 
 /// Moves the elements satisfying `pred` to the front; returns how many there are.
