@@ -2,7 +2,9 @@
 //! bottom structure) placed by an affine transform, so one mesh is stored
 //! once and drawn many times.
 
-use crate::{Accel, AccelKind, AccelStats, BuildConfig, Hit, NoStats, RayCounter, Surface};
+use crate::{
+    Accel, AccelKind, AccelStats, BuildConfig, CountStats, Hit, NoStats, RayCounter, Surface,
+};
 use raymesh_geometry::{Aabb, Mat3, Mat4, Ray, Vec3};
 
 /// One placement of an object.
@@ -79,14 +81,41 @@ impl<S: Surface> Instances<S> {
         self.top.stats()
     }
 
-    /// Closest hit, counting top-level work.
-    pub fn intersect_counted<C: RayCounter>(&self, ray: &Ray, counter: &mut C) -> Option<Hit> {
+    /// The object instance `k` places.
+    #[must_use]
+    pub fn object_of(&self, k: u32) -> u32 {
+        self.placed[k as usize].object
+    }
+
+    /// Carries an object-space normal of instance `k` to world space (unit length).
+    #[must_use]
+    pub fn normal_to_world(&self, k: u32, n: Vec3) -> Vec3 {
+        (self.placed[k as usize].normal_matrix * n).normalize_or_zero()
+    }
+
+    /// Closest hit, counting the work of both levels.
+    pub fn intersect_counted(&self, ray: &Ray, stats: &mut CountStats) -> Option<Hit> {
+        let mut bottom = CountStats::default();
+        let hit = self.intersect_with(ray, stats, |obj, r| obj.intersect_count(r, &mut bottom));
+        stats.nodes += bottom.nodes;
+        stats.prims += bottom.prims;
+        hit
+    }
+
+    /// One loop for counted and plain queries: `bottom` queries an object
+    /// with a ray in its space; `counter` counts the top level.
+    fn intersect_with<C: RayCounter>(
+        &self,
+        ray: &Ray,
+        counter: &mut C,
+        mut bottom: impl FnMut(&S, &Ray) -> Option<Hit>,
+    ) -> Option<Hit> {
         let mut best: Option<Hit> = None;
         let mut tmax = ray.tmax();
         self.top.traverse(ray, counter, &mut |k| {
             let p = &self.placed[k as usize];
             let local = self.local_ray(p, ray, tmax);
-            if let Some(mut h) = self.objects[p.object as usize].intersect(&local) {
+            if let Some(mut h) = bottom(&self.objects[p.object as usize], &local) {
                 let better = match best {
                     None => true,
                     Some(b) => h.t < b.t || (h.t == b.t && (k, h.prim) < (b.instance, b.prim)),
@@ -118,7 +147,10 @@ impl<S: Surface> Surface for Instances<S> {
         self.bounds
     }
     fn intersect(&self, ray: &Ray) -> Option<Hit> {
-        self.intersect_counted(ray, &mut NoStats)
+        self.intersect_with(ray, &mut NoStats, |obj, r| obj.intersect(r))
+    }
+    fn intersect_count(&self, ray: &Ray, stats: &mut CountStats) -> Option<Hit> {
+        self.intersect_counted(ray, stats)
     }
     fn occluded(&self, ray: &Ray) -> bool {
         let mut hit = false;

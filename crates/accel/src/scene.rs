@@ -31,6 +31,12 @@ pub trait Surface: Send + Sync {
     fn intersect(&self, ray: &Ray) -> Option<Hit>;
     /// Whether anything is hit within the ray's interval (for shadow rays).
     fn occluded(&self, ray: &Ray) -> bool;
+    /// [`Surface::intersect`], adding the nodes visited and primitives
+    /// tested to `stats` (heat maps use it).
+    fn intersect_count(&self, ray: &Ray, stats: &mut CountStats) -> Option<Hit> {
+        let _ = stats;
+        self.intersect(ray)
+    }
 }
 
 /// Primitives and the structure built over them.
@@ -185,5 +191,8 @@ impl<P: Primitives> Surface for Scene<P> {
     #[inline]
     fn occluded(&self, ray: &Ray) -> bool {
         self.occluded_counted(ray, &mut NoStats)
+    }
+    fn intersect_count(&self, ray: &Ray, stats: &mut CountStats) -> Option<Hit> {
+        self.intersect_counted(ray, stats)
     }
 }

@@ -24,6 +24,8 @@ enum Command {
     Raycast(cmd::raycast::Args),
     /// Write one of BENCH.md's ray workloads for a mesh as a .npy file.
     Rays(cmd::rays::Args),
+    /// Ray-trace a scene file, a mesh, or (with no argument) the built-in demo to PNG.
+    Render(cmd::render::Args),
 }
 
 fn main() -> ExitCode {
@@ -32,6 +34,7 @@ fn main() -> ExitCode {
         Command::Info(a) => cmd::info::run(&a),
         Command::Raycast(a) => cmd::raycast::run(&a),
         Command::Rays(a) => cmd::rays::run(&a),
+        Command::Render(a) => cmd::render::run(&a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

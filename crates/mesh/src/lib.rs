@@ -9,6 +9,7 @@
 mod error;
 mod indexed;
 pub mod io;
+pub mod normals;
 
 pub use error::{ErrorKind, Location, MeshError};
 pub use indexed::{IndexedMesh, MeshStats};

@@ -3,6 +3,7 @@
 pub mod info;
 pub mod raycast;
 pub mod rays;
+pub mod render;
 
 /// A rayon pool of `threads` workers (all cores when `None`).
 pub fn thread_pool(threads: Option<usize>) -> anyhow::Result<rayon::ThreadPool> {

@@ -1,0 +1,233 @@
+//! `raymesh render [SCENE.json | MESH] [-o OUT.png] [--accel NAME] [--width W] [--height H] [--spp N] [--threads N] [--heatmap]`.
+
+use anyhow::{bail, Context, Result};
+use indicatif::{ProgressBar, ProgressStyle};
+use raymesh_accel::AccelKind;
+use raymesh_geometry::Vec3;
+use raymesh_mesh::io::{read_mesh, Format};
+use raymesh_render::{
+    demo_scene, heat_color, render, save_png, to_srgb8, torus_knot, Mode, Options, SceneDesc, World,
+};
+use serde_json::json;
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+
+/// Arguments of `raymesh render`.
+#[derive(clap::Args)]
+pub struct Args {
+    /// A scene (.json, see docs/scene-format.md) or a mesh (.obj, .off, .ply, .stl);
+    /// none renders the built-in demo scene.
+    pub input: Option<PathBuf>,
+    /// Output PNG. Without it the image goes to raymesh.png (demo) or NAME.png,
+    /// and an existing file there is never overwritten: a free name is chosen.
+    #[arg(short = 'o', long = "output")]
+    pub output: Option<PathBuf>,
+    /// Acceleration structure (overrides the scene's).
+    #[arg(long)]
+    pub accel: Option<AccelKind>,
+    /// Image width (overrides the scene's).
+    #[arg(long)]
+    pub width: Option<u32>,
+    /// Image height (overrides the scene's).
+    #[arg(long)]
+    pub height: Option<u32>,
+    /// Samples per pixel (overrides the scene's).
+    #[arg(long)]
+    pub spp: Option<u32>,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Show what each pixel's camera rays cost (nodes visited + primitives tested) instead of shading.
+    #[arg(long)]
+    pub heatmap: bool,
+}
+
+/// A procedural mesh by name (`builtin:NAME` in scene files).
+fn builtin(name: &str) -> Option<raymesh_mesh::IndexedMesh> {
+    match name {
+        "torus-knot" => Some(torus_knot(640, 48)),
+        _ => None,
+    }
+}
+
+/// Resolves a scene's mesh path: `builtin:NAME`, or a file relative to the scene.
+fn mesh_loader(base: PathBuf) -> impl Fn(&str) -> Result<raymesh_mesh::IndexedMesh, String> {
+    move |file: &str| {
+        if let Some(name) = file.strip_prefix("builtin:") {
+            return builtin(name)
+                .ok_or_else(|| format!("no built-in mesh '{name}' (there is: torus-knot)"));
+        }
+        read_mesh(base.join(file)).map_err(|e| e.to_string())
+    }
+}
+
+/// A scene made on the spot for a mesh: BENCH.md's camera, a light near
+/// the eye, a grey material and a floor under the mesh.
+fn mesh_scene(path: &Path) -> Result<SceneDesc> {
+    let mesh = read_mesh(path)?;
+    let b = mesh.bounds();
+    if b.is_empty() {
+        bail!("{}: the mesh has no vertices", path.display());
+    }
+    let (c, d) = (b.centroid(), b.diagonal().max(1e-6));
+    let eye = c + Vec3::new(1.0, 0.6, 1.6).normalize() * d;
+    let light = eye + 0.5 * d * Vec3::Y + Vec3::new(-0.3, 0.0, 0.2) * d;
+    let (y, r) = (b.min.y - 1e-3 * d, 4.0 * d);
+    let corner = |sx: f32, sz: f32| [c.x + sx * r, y, c.z + sz * r];
+    let desc = json!({
+        "camera": { "eye": eye.to_array(), "target": c.to_array(), "fov": 40 },
+        "image": { "width": 800, "height": 600, "spp": 4 },
+        "lights": [
+            { "type": "ambient", "intensity": 0.2 },
+            { "type": "point", "position": light.to_array(), "intensity": 1.6 * d * d }
+        ],
+        "materials": {
+            "grey": { "ambient": [0.5, 0.5, 0.5], "diffuse": [0.7, 0.7, 0.7], "specular": [0.2, 0.2, 0.2], "shininess": 30 },
+            "floor": { "ambient": [0.4, 0.4, 0.42], "diffuse": [0.5, 0.5, 0.52] }
+        },
+        "surfaces": [
+            { "type": "mesh", "file": path.file_name().unwrap_or_default().to_string_lossy(), "material": "grey" },
+            { "type": "triangle", "vertices": [corner(-1.0, -1.0), corner(-1.0, 1.0), corner(1.0, 1.0)], "material": "floor" },
+            { "type": "triangle", "vertices": [corner(-1.0, -1.0), corner(1.0, 1.0), corner(1.0, -1.0)], "material": "floor" }
+        ]
+    });
+    Ok(SceneDesc::parse(&desc.to_string(), path)?)
+}
+
+/// `stem.png`, or the first of `stem-1.png`, `stem-2.png`, … that does not exist.
+fn free_name(stem: &str) -> PathBuf {
+    let first = PathBuf::from(format!("{stem}.png"));
+    if !first.exists() {
+        return first;
+    }
+    (1..)
+        .map(|i| PathBuf::from(format!("{stem}-{i}.png")))
+        .find(|p| !p.exists())
+        .expect("some name is free")
+}
+
+/// Runs the command.
+pub fn run(args: &Args) -> Result<()> {
+    let pool = crate::cmd::thread_pool(args.threads)?;
+    let (mut desc, file, base, stem) = match &args.input {
+        None => (
+            demo_scene(),
+            PathBuf::from("<demo>"),
+            PathBuf::from("."),
+            "raymesh".to_string(),
+        ),
+        Some(p) => {
+            let stem = p
+                .file_stem()
+                .unwrap_or_default()
+                .to_string_lossy()
+                .into_owned();
+            let base = p.parent().map(Path::to_path_buf).unwrap_or_default();
+            let is_json = p
+                .extension()
+                .is_some_and(|e| e.eq_ignore_ascii_case("json"));
+            if is_json {
+                (SceneDesc::load(p)?, p.clone(), base, stem)
+            } else if Format::from_extension(p).is_some() {
+                (mesh_scene(p)?, p.clone(), base, stem)
+            } else {
+                bail!(
+                    "{}: expected a scene (.json) or a mesh (.obj, .off, .ply, .stl)",
+                    p.display()
+                );
+            }
+        }
+    };
+    if let Some(a) = args.accel {
+        desc.accel = a.name().to_string();
+    }
+    if let Some(w) = args.width {
+        desc.image.width = w;
+    }
+    if let Some(h) = args.height {
+        desc.image.height = h;
+    }
+    if let Some(s) = args.spp {
+        desc.image.spp = s;
+    }
+    let out = match &args.output {
+        Some(o) => o.clone(),
+        None => free_name(
+            if args.heatmap {
+                format!("{stem}-heatmap")
+            } else {
+                stem
+            }
+            .as_str(),
+        ),
+    };
+    let world = pool.install(|| World::build(&desc, &file, &mesh_loader(base)))?;
+    let bar = if std::io::stderr().is_terminal() {
+        let b = ProgressBar::new(1);
+        b.set_style(
+            ProgressStyle::with_template(
+                "{spinner} rendering [{bar:40}] {percent}% {elapsed} (eta {eta})",
+            )?
+            .progress_chars("=> "),
+        );
+        b
+    } else {
+        ProgressBar::hidden()
+    };
+    let mode = if args.heatmap {
+        Mode::Heatmap
+    } else {
+        Mode::Shade
+    };
+    let img = pool.install(|| {
+        render(&world, Options { mode }, &|done, total| {
+            bar.set_length(total);
+            bar.set_position(done);
+        })
+    });
+    bar.finish_and_clear();
+    let bytes = if args.heatmap {
+        let costs: Vec<f32> = img.pixels.iter().map(|p| p.x).collect();
+        let lo = costs.iter().copied().fold(f32::INFINITY, f32::min);
+        let hi = costs.iter().copied().fold(0.0f32, f32::max);
+        // Logarithmic: silhouettes cost hundreds of steps where open space
+        // costs a few; a linear scale would show only the silhouettes.
+        let span = (1.0 + hi - lo).ln().max(1e-6);
+        // The bottom 12 rows show the palette from the minimum (left) to the maximum (right).
+        let legend = 12.min(img.height / 8);
+        let pixels: Vec<Vec3> = (0..img.pixels.len())
+            .map(|i| {
+                let (x, y) = (i as u32 % img.width, i as u32 / img.width);
+                if y >= img.height - legend {
+                    heat_color(x as f32 / (img.width - 1).max(1) as f32)
+                } else {
+                    heat_color((1.0 + costs[i] - lo).ln() / span)
+                }
+            })
+            .collect();
+        println!("heat map: cost per camera ray (nodes visited + primitives tested) from {lo:.1} (dark) to {hi:.1} (bright), logarithmic; the strip at the bottom is the scale");
+        to_srgb8(&pixels)
+    } else {
+        to_srgb8(&img.pixels)
+    };
+    save_png(&out, img.width, img.height, &bytes)
+        .with_context(|| format!("{}: cannot write", out.display()))?;
+    println!(
+        "{} triangles, {} ({} threads): build {:.1} ms, render {:.2} s, {} rays, {:.2} Mrays/s",
+        world.triangles,
+        world.accel,
+        pool.current_num_threads(),
+        world.build_ms,
+        img.seconds,
+        img.rays,
+        img.rays as f64 / img.seconds.max(1e-9) / 1e6
+    );
+    println!(
+        "wrote {} ({}×{}, {} spp)",
+        out.display(),
+        img.width,
+        img.height,
+        world.spp
+    );
+    Ok(())
+}

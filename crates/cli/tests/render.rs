@@ -1,0 +1,103 @@
+//! End-to-end tests of `raymesh render`: outputs, and never overwriting a file the user did not name.
+
+use std::path::PathBuf;
+use std::process::Command;
+
+fn raymesh() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_raymesh"))
+}
+
+fn data(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../tests/data")
+        .join(name)
+}
+
+#[test]
+fn demo_and_mesh_render_without_overwriting() {
+    let dir = std::env::temp_dir().join(format!("raymesh-render-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let small = ["--width", "64", "--height", "48", "--spp", "1"];
+    // The demo goes to raymesh.png; an existing one is kept and a free name is used.
+    std::fs::write(dir.join("raymesh.png"), b"keep me").unwrap();
+    let out = raymesh()
+        .current_dir(&dir)
+        .arg("render")
+        .args(small)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(text.contains("wrote raymesh-1.png"), "{text}");
+    assert_eq!(std::fs::read(dir.join("raymesh.png")).unwrap(), b"keep me");
+    assert!(std::fs::read(dir.join("raymesh-1.png"))
+        .unwrap()
+        .starts_with(b"\x89PNG"));
+    // -o names the file: then it is overwritten.
+    let out = raymesh()
+        .current_dir(&dir)
+        .arg("render")
+        .args(small)
+        .args(["-o", "raymesh.png"])
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    assert!(std::fs::read(dir.join("raymesh.png"))
+        .unwrap()
+        .starts_with(b"\x89PNG"));
+    // A mesh gets a scene made on the spot; the heat map says its scale.
+    let out = raymesh()
+        .current_dir(&dir)
+        .arg("render")
+        .arg(data("tetrahedron.off"))
+        .args(small)
+        .arg("--heatmap")
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(
+        text.contains("wrote tetrahedron-heatmap.png") && text.contains("logarithmic"),
+        "{text}"
+    );
+    // Bad input: a clear error, nothing written.
+    let out = raymesh()
+        .current_dir(&dir)
+        .arg("render")
+        .arg(dir.join("none.json"))
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("none.json: cannot read"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn example_scenes_parse_and_render() {
+    let scenes = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
+    for name in ["demo.json", "spheres.json", "elephants.json"] {
+        let out = raymesh()
+            .arg("render")
+            .arg(scenes.join(name))
+            .args(["--width", "40", "--height", "30", "--spp", "1", "-o"])
+            .arg(
+                std::env::temp_dir()
+                    .join(format!("raymesh-scene-{}-{name}.png", std::process::id())),
+            )
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{name}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+}

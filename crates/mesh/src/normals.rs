@@ -1,0 +1,97 @@
+//! Face and vertex normals of an indexed polygon mesh.
+
+use crate::IndexedMesh;
+use raymesh_geometry::Vec3;
+
+/// Angle-weighted vertex normals (Thürmer & Wüthrich, "Computing vertex
+/// normals from polygonal facets", 1998): each face adds its unit normal
+/// weighted by its interior angle at the vertex, which makes the result
+/// independent of how polygons are triangulated. Polygons use the normal
+/// of their fan triangle at the corner. Vertices of no face, or only of
+/// degenerate faces, get a zero normal.
+#[must_use]
+pub fn vertex_normals(mesh: &IndexedMesh) -> Vec<Vec3> {
+    let p = &mesh.positions;
+    let mut normals = vec![Vec3::ZERO; p.len()];
+    for f in mesh.faces() {
+        let n = face_normal(mesh, f);
+        if n == Vec3::ZERO {
+            continue;
+        }
+        let k = f.len();
+        for i in 0..k {
+            let (a, b, c) = (f[(i + k - 1) % k], f[i], f[(i + 1) % k]);
+            let e0 = (p[a as usize] - p[b as usize]).normalize_or_zero();
+            let e1 = (p[c as usize] - p[b as usize]).normalize_or_zero();
+            let angle = e0.dot(e1).clamp(-1.0, 1.0).acos();
+            normals[b as usize] += n * angle;
+        }
+    }
+    for n in &mut normals {
+        *n = n.normalize_or_zero();
+    }
+    normals
+}
+
+/// Unit normal of a polygon by Newell's method (robust for non-planar
+/// polygons); zero for a degenerate one.
+#[must_use]
+pub fn face_normal(mesh: &IndexedMesh, face: &[u32]) -> Vec3 {
+    let p = &mesh.positions;
+    let mut n = Vec3::ZERO;
+    for i in 0..face.len() {
+        let a = p[face[i] as usize];
+        let b = p[face[(i + 1) % face.len()] as usize];
+        n += Vec3::new(
+            (a.y - b.y) * (a.z + b.z),
+            (a.z - b.z) * (a.x + b.x),
+            (a.x - b.x) * (a.y + b.y),
+        );
+    }
+    n.normalize_or_zero()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cube_corners_point_outward_diagonally() {
+        let m = crate::io::read_bytes(
+            b"OFF\n8 6 0\n-1 -1 -1\n1 -1 -1\n1 1 -1\n-1 1 -1\n-1 -1 1\n1 -1 1\n1 1 1\n-1 1 1\n\
+              4 0 3 2 1\n4 4 5 6 7\n4 0 1 5 4\n4 2 3 7 6\n4 1 2 6 5\n4 0 4 7 3\n",
+            crate::io::Format::Off,
+        )
+        .unwrap();
+        let n = vertex_normals(&m);
+        for (v, n) in m.positions.iter().zip(&n) {
+            assert!((n.dot(v.normalize()) - 1.0).abs() < 1e-5, "{v} {n}");
+        }
+        assert_eq!(face_normal(&m, m.face(1)), Vec3::Z);
+    }
+
+    #[test]
+    fn triangulation_does_not_change_angle_weighted_normals() {
+        // A quad split two ways plus a triangle: the shared vertex normal is the same.
+        let p = vec![
+            Vec3::ZERO,
+            Vec3::X,
+            Vec3::new(1.0, 1.0, 0.0),
+            Vec3::Y,
+            Vec3::new(0.0, 0.0, 1.0),
+        ];
+        let quad =
+            IndexedMesh::from_polygons(p.clone(), [&[0u32, 1, 2, 3][..], &[0, 4, 1]]).unwrap();
+        let tris =
+            IndexedMesh::from_polygons(p, [&[0u32, 1, 2][..], &[0, 2, 3], &[0, 4, 1]]).unwrap();
+        let (a, b) = (vertex_normals(&quad)[0], vertex_normals(&tris)[0]);
+        assert!((a - b).length() < 1e-6, "{a} {b}");
+    }
+
+    #[test]
+    fn isolated_and_degenerate_vertices_get_zero() {
+        let p = vec![Vec3::ZERO, Vec3::X, Vec3::X * 2.0, Vec3::Y];
+        let m = IndexedMesh::from_triangles(p, &[[0, 1, 2]]).unwrap();
+        assert!(vertex_normals(&m).iter().all(|n| *n == Vec3::ZERO));
+    }
+}

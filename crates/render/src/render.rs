@@ -1,0 +1,122 @@
+//! Rendering: tiles on all cores, stratified samples, shading or heat map.
+
+use crate::World;
+use raymesh_geometry::Vec3;
+use rayon::prelude::*;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Instant;
+
+/// What each pixel shows.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Mode {
+    /// Whitted shading.
+    Shade,
+    /// Nodes visited plus primitives tested by the pixel's camera rays.
+    Heatmap,
+}
+
+/// Render settings beyond the scene's.
+#[derive(Clone, Copy, Debug)]
+pub struct Options {
+    /// Shading or heat map.
+    pub mode: Mode,
+}
+
+/// A finished image and what it took.
+pub struct Rendered {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Linear RGB (shade) or the mean cost per camera ray in `x` (heat map), row-major, row 0 at the top.
+    pub pixels: Vec<Vec3>,
+    /// Rays traced (camera, shadow and reflection).
+    pub rays: u64,
+    /// Seconds spent rendering.
+    pub seconds: f64,
+}
+
+/// Edge of a square tile in pixels.
+const TILE: u32 = 32;
+
+/// SplitMix64 finalizer: a hash for per-pixel sample jitter, so the image
+/// is the same on every run, thread count and structure.
+fn hash(mut z: u64) -> u64 {
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+fn unit(h: u64) -> f32 {
+    (h >> 40) as f32 / (1u64 << 24) as f32
+}
+
+/// Sample `k` of `spp` in pixel `(x, y)`: stratified on a `g × g` grid
+/// (`g = ⌈√spp⌉`), jittered within its cell; one sample is the pixel centre.
+fn sample(x: u32, y: u32, k: u32, spp: u32) -> (f32, f32) {
+    if spp == 1 {
+        return (x as f32 + 0.5, y as f32 + 0.5);
+    }
+    let g = (spp as f32).sqrt().ceil() as u32;
+    let (cx, cy) = (k % g, k / g);
+    let h = hash(((y as u64) << 40) ^ ((x as u64) << 16) ^ k as u64 ^ 0x9e37_79b9_7f4a_7c15);
+    let (jx, jy) = (unit(h), unit(hash(h)));
+    (
+        x as f32 + (cx as f32 + jx) / g as f32,
+        y as f32 + (cy as f32 + jy) / g as f32,
+    )
+}
+
+/// Renders the world; `progress(done, total)` is called as tiles finish.
+pub fn render(world: &World, opts: Options, progress: &(dyn Fn(u64, u64) + Sync)) -> Rendered {
+    let (w, h, spp) = (world.width, world.height, world.spp);
+    let tiles_x = w.div_ceil(TILE);
+    let tiles = (tiles_x * h.div_ceil(TILE)) as u64;
+    let done = AtomicU64::new(0);
+    let start = Instant::now();
+    let results: Vec<(u32, u32, Vec<Vec3>, u64)> = (0..tiles as u32)
+        .into_par_iter()
+        .map(|t| {
+            let (x0, y0) = ((t % tiles_x) * TILE, (t / tiles_x) * TILE);
+            let (x1, y1) = ((x0 + TILE).min(w), (y0 + TILE).min(h));
+            let mut out = Vec::with_capacity(((x1 - x0) * (y1 - y0)) as usize);
+            let mut rays = 0u64;
+            for y in y0..y1 {
+                for x in x0..x1 {
+                    let mut acc = Vec3::ZERO;
+                    for k in 0..spp {
+                        let (sx, sy) = sample(x, y, k, spp);
+                        let ray = world.camera.ray(sx / w as f32, sy / h as f32);
+                        acc += match opts.mode {
+                            Mode::Shade => world.trace(&ray, 0, &mut rays),
+                            Mode::Heatmap => {
+                                rays += 1;
+                                Vec3::new(world.cost(&ray) as f32, 0.0, 0.0)
+                            }
+                        };
+                    }
+                    out.push(acc / spp as f32);
+                }
+            }
+            progress(done.fetch_add(1, Ordering::Relaxed) + 1, tiles);
+            (x0, y0, out, rays)
+        })
+        .collect();
+    let mut pixels = vec![Vec3::ZERO; (w * h) as usize];
+    let mut rays = 0;
+    for (x0, y0, tile, r) in results {
+        rays += r;
+        let tw = (x0 + TILE).min(w) - x0;
+        for (i, p) in tile.into_iter().enumerate() {
+            let (x, y) = (x0 + i as u32 % tw, y0 + i as u32 / tw);
+            pixels[(y * w + x) as usize] = p;
+        }
+    }
+    Rendered {
+        width: w,
+        height: h,
+        pixels,
+        rays,
+        seconds: start.elapsed().as_secs_f64(),
+    }
+}

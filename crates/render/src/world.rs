@@ -1,0 +1,463 @@
+//! A scene ready to render: the camera, lights, materials, and every
+//! surface under one two-level acceleration structure.
+
+use crate::desc::{AmbientDesc, DirectionalDesc, PointDesc};
+use crate::desc::{
+    LightDesc, MeshDesc, SceneDesc, Shading, SphereDesc, SurfaceDesc, TransformDesc, TriangleDesc,
+};
+use crate::{Camera, SceneError};
+use raymesh_accel::{
+    AccelKind, CountStats, Hit, Instance, Instances, Ray, Scene, Shape, Shapes, Surface,
+    TriangleMesh, Triangles,
+};
+use raymesh_geometry::{Aabb, Mat4, Quat, Sphere, Vec3};
+use raymesh_mesh::{normals::vertex_normals, IndexedMesh};
+use std::collections::HashMap;
+use std::path::Path;
+use std::time::Instant;
+
+/// A Blinn-Phong material with mirror reflectance (linear RGB).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Material {
+    /// Reflectance of ambient light.
+    pub ambient: Vec3,
+    /// Lambertian reflectance.
+    pub diffuse: Vec3,
+    /// Specular reflectance.
+    pub specular: Vec3,
+    /// Blinn-Phong exponent.
+    pub shininess: f32,
+    /// Mirror reflectance.
+    pub mirror: Vec3,
+}
+
+impl Default for Material {
+    fn default() -> Self {
+        Self {
+            ambient: Vec3::splat(0.1),
+            diffuse: Vec3::splat(0.7),
+            specular: Vec3::ZERO,
+            shininess: 32.0,
+            mirror: Vec3::ZERO,
+        }
+    }
+}
+
+/// A light that casts shadows.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Light {
+    /// Point light: position and intensity (colour × scale); falls off as 1/r².
+    Point(Vec3, Vec3),
+    /// Directional light: unit direction toward the light, and its radiance.
+    Directional(Vec3, Vec3),
+}
+
+/// One bottom-level object: a mesh, or the loose spheres and triangles.
+enum Object {
+    Mesh(Scene<Triangles>),
+    Shapes(Scene<Shapes>),
+}
+
+impl Surface for Object {
+    fn bounds(&self) -> Aabb {
+        match self {
+            Self::Mesh(s) => s.bounds(),
+            Self::Shapes(s) => s.bounds(),
+        }
+    }
+    fn intersect(&self, ray: &Ray) -> Option<Hit> {
+        match self {
+            Self::Mesh(s) => s.intersect(ray),
+            Self::Shapes(s) => s.intersect(ray),
+        }
+    }
+    fn occluded(&self, ray: &Ray) -> bool {
+        match self {
+            Self::Mesh(s) => s.occluded(ray),
+            Self::Shapes(s) => s.occluded(ray),
+        }
+    }
+    fn intersect_count(&self, ray: &Ray, stats: &mut CountStats) -> Option<Hit> {
+        match self {
+            Self::Mesh(s) => s.intersect_counted(ray, stats),
+            Self::Shapes(s) => s.intersect_counted(ray, stats),
+        }
+    }
+}
+
+/// What shading needs to know about a mesh object.
+struct MeshData {
+    triangles: Vec<[u32; 3]>,
+    normals: Vec<Vec3>,
+}
+
+/// Per instance: its material and shading.
+#[derive(Clone, Copy)]
+struct InstanceInfo {
+    material: u32,
+    smooth: bool,
+}
+
+/// A scene ready to render.
+pub struct World {
+    /// The camera.
+    pub camera: Camera,
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+    /// Samples per pixel.
+    pub spp: u32,
+    /// Colour of rays that hit nothing.
+    pub background: Vec3,
+    /// Most mirror bounces.
+    pub max_depth: u32,
+    /// Ambient light.
+    pub ambient: Vec3,
+    /// Lights that cast shadows.
+    pub lights: Vec<Light>,
+    materials: Vec<Material>,
+    scene: Instances<Object>,
+    meshes: Vec<MeshData>,
+    instances: Vec<InstanceInfo>,
+    /// Material of each loose shape (the shapes object's primitives).
+    shape_materials: Vec<u32>,
+    /// Triangles drawn, counting every instance.
+    pub triangles: usize,
+    /// The structure used (both levels).
+    pub accel: AccelKind,
+    /// Milliseconds spent building the structures.
+    pub build_ms: f64,
+    /// Offset for secondary rays, a small fraction of the scene's size.
+    epsilon: f32,
+}
+
+fn v3(a: [f32; 3]) -> Vec3 {
+    Vec3::from_array(a)
+}
+
+fn transform(t: &TransformDesc) -> Mat4 {
+    let [rx, ry, rz] = t.rotate.map(f32::to_radians);
+    let rot = Quat::from_rotation_z(rz) * Quat::from_rotation_y(ry) * Quat::from_rotation_x(rx);
+    Mat4::from_scale_rotation_translation(v3(t.scale.rgb()), rot, v3(t.translate))
+}
+
+impl World {
+    /// Builds a scene from its description. `file` names the scene in
+    /// errors; `load_mesh` turns a surface's `file` into a mesh.
+    pub fn build(
+        desc: &SceneDesc,
+        file: &Path,
+        load_mesh: &dyn Fn(&str) -> Result<IndexedMesh, String>,
+    ) -> Result<Self, SceneError> {
+        let err = |path: String, msg: String| SceneError::at(file, path, msg);
+        let accel: AccelKind = desc.accel.parse().map_err(|e| err("accel".into(), e))?;
+        let img = &desc.image;
+        if img.width == 0 || img.height == 0 || img.width > 1 << 15 || img.height > 1 << 15 {
+            return Err(err(
+                "image".into(),
+                format!(
+                    "image size {}×{} must be within 1..=32768",
+                    img.width, img.height
+                ),
+            ));
+        }
+        if img.spp == 0 || img.spp > 4096 {
+            return Err(err(
+                "image.spp".into(),
+                "samples per pixel must be within 1..=4096".into(),
+            ));
+        }
+        let c = &desc.camera;
+        let camera = Camera::look_at(
+            v3(c.eye),
+            v3(c.target),
+            v3(c.up),
+            c.fov,
+            img.width as f32 / img.height as f32,
+        )
+        .ok_or_else(|| {
+            err(
+                "camera".into(),
+                "degenerate camera: eye = target, up parallel to the view, or fov outside (0, 180)"
+                    .into(),
+            )
+        })?;
+
+        let mut names: HashMap<&str, u32> = HashMap::new();
+        let mut materials = vec![Material::default()];
+        for (name, m) in &desc.materials {
+            names.insert(name, materials.len() as u32);
+            materials.push(Material {
+                ambient: v3(m.ambient),
+                diffuse: v3(m.diffuse),
+                specular: v3(m.specular),
+                shininess: m.shininess,
+                mirror: v3(m.mirror.rgb()),
+            });
+        }
+        let material = |m: &Option<String>, path: String| -> Result<u32, SceneError> {
+            match m {
+                None => Ok(0),
+                Some(n) => names.get(n.as_str()).copied().ok_or_else(|| {
+                    let known: Vec<&str> = names.keys().copied().collect();
+                    err(
+                        path,
+                        format!(
+                            "unknown material '{n}' (defined: {})",
+                            if known.is_empty() {
+                                "none".into()
+                            } else {
+                                known.join(", ")
+                            }
+                        ),
+                    )
+                }),
+            }
+        };
+
+        let (mut ambient, mut lights) = (Vec3::ZERO, Vec::new());
+        for (i, l) in desc.lights.iter().enumerate() {
+            match l {
+                LightDesc::Ambient(AmbientDesc {
+                    color, intensity, ..
+                }) => ambient += v3(*color) * *intensity,
+                LightDesc::Point(PointDesc {
+                    position,
+                    color,
+                    intensity,
+                    ..
+                }) => lights.push(Light::Point(v3(*position), v3(*color) * *intensity)),
+                LightDesc::Directional(DirectionalDesc {
+                    direction,
+                    color,
+                    intensity,
+                    ..
+                }) => {
+                    let d = v3(*direction).try_normalize().ok_or_else(|| {
+                        err(format!("lights[{i}].direction"), "zero direction".into())
+                    })?;
+                    lights.push(Light::Directional(-d, v3(*color) * *intensity));
+                }
+            }
+        }
+
+        let start = Instant::now();
+        let mut objects = Vec::new();
+        let mut meshes = Vec::new();
+        let mut instances = Vec::new();
+        let mut infos = Vec::new();
+        let mut loaded: HashMap<&str, u32> = HashMap::new();
+        let mut shapes = Vec::new();
+        let mut shape_materials = Vec::new();
+        let mut triangles = 0usize;
+        for (i, s) in desc.surfaces.iter().enumerate() {
+            let at = |field: &str| format!("surfaces[{i}].{field}");
+            match s {
+                SurfaceDesc::Sphere(SphereDesc {
+                    center,
+                    radius,
+                    material: m,
+                    ..
+                }) => {
+                    if !(*radius > 0.0 && radius.is_finite() && v3(*center).is_finite()) {
+                        return Err(err(at("radius"), format!("a sphere needs a finite centre and a positive radius, got {radius}")));
+                    }
+                    shapes.push(Shape::Sphere(Sphere::new(v3(*center), *radius)));
+                    shape_materials.push(material(m, at("material"))?);
+                }
+                SurfaceDesc::Triangle(TriangleDesc {
+                    vertices,
+                    material: m,
+                    ..
+                }) => {
+                    shapes.push(Shape::Triangle(vertices.map(v3)));
+                    shape_materials.push(material(m, at("material"))?);
+                    triangles += 1;
+                }
+                SurfaceDesc::Mesh(MeshDesc {
+                    file: mesh_file,
+                    material: m,
+                    shading,
+                    transform: t,
+                    instances: many,
+                    ..
+                }) => {
+                    let mat = material(m, at("material"))?;
+                    let object = match loaded.get(mesh_file.as_str()) {
+                        Some(&o) => o,
+                        None => {
+                            let mesh = load_mesh(mesh_file).map_err(|e| err(at("file"), e))?;
+                            let tris = mesh.triangles();
+                            let normals = vertex_normals(&mesh);
+                            let tm = TriangleMesh::new(mesh.positions, tris.clone());
+                            objects
+                                .push(Object::Mesh(Scene::build(Triangles::from_mesh(&tm), accel)));
+                            meshes.push(MeshData {
+                                triangles: tris,
+                                normals,
+                            });
+                            let o = (objects.len() - 1) as u32;
+                            loaded.insert(mesh_file, o);
+                            o
+                        }
+                    };
+                    let placements: Vec<&TransformDesc> = match many {
+                        Some(list) => list.iter().collect(),
+                        None => vec![t],
+                    };
+                    for p in placements {
+                        instances.push(Instance {
+                            object,
+                            transform: transform(p),
+                        });
+                        infos.push(InstanceInfo {
+                            material: mat,
+                            smooth: *shading == Shading::Smooth,
+                        });
+                        triangles += meshes[object as usize].triangles.len();
+                    }
+                }
+            }
+        }
+        if !shapes.is_empty() {
+            objects.push(Object::Shapes(Scene::build(Shapes(shapes), accel)));
+            instances.push(Instance {
+                object: (objects.len() - 1) as u32,
+                transform: Mat4::IDENTITY,
+            });
+            infos.push(InstanceInfo {
+                material: 0,
+                smooth: false,
+            });
+        }
+        let scene =
+            Instances::build(objects, &instances, accel).map_err(|e| err("surfaces".into(), e))?;
+        let build_ms = start.elapsed().as_secs_f64() * 1e3;
+        let b = scene.bounds();
+        let epsilon = if b.is_empty() {
+            1e-4
+        } else {
+            (b.diagonal() * 1e-5).max(1e-6)
+        };
+        Ok(Self {
+            camera,
+            width: img.width,
+            height: img.height,
+            spp: img.spp,
+            background: v3(img.background),
+            max_depth: desc.max_depth,
+            ambient,
+            lights,
+            materials,
+            scene,
+            meshes,
+            instances: infos,
+            shape_materials,
+            triangles,
+            accel,
+            build_ms,
+            epsilon,
+        })
+    }
+
+    /// The whole scene as one surface.
+    #[must_use]
+    pub fn surface(&self) -> &dyn Surface {
+        &self.scene
+    }
+
+    /// Material and shading normal (world space, unnormalized orientation) at a hit.
+    fn shade_info(&self, hit: &Hit) -> (Material, Vec3) {
+        let info = self.instances[hit.instance as usize];
+        match &self.scene.objects()[self.scene.object_of(hit.instance) as usize] {
+            Object::Mesh(_) => {
+                let m = &self.meshes[self.scene.object_of(hit.instance) as usize];
+                let n = if info.smooth {
+                    let [a, b, c] = m.triangles[hit.prim as usize];
+                    let n = (1.0 - hit.u - hit.v) * m.normals[a as usize]
+                        + hit.u * m.normals[b as usize]
+                        + hit.v * m.normals[c as usize];
+                    let n = self.scene.normal_to_world(hit.instance, n);
+                    if n == Vec3::ZERO {
+                        hit.normal
+                    } else {
+                        n
+                    }
+                } else {
+                    hit.normal
+                };
+                (self.materials[info.material as usize], n)
+            }
+            Object::Shapes(_) => (
+                self.materials[self.shape_materials[hit.prim as usize] as usize],
+                hit.normal,
+            ),
+        }
+    }
+
+    /// Radiance arriving along `ray` (Whitted: ambient, Lambert and
+    /// Blinn-Phong per unshadowed light, and mirror reflection up to
+    /// `max_depth` bounces). Counts traced rays in `rays`.
+    pub fn trace(&self, ray: &Ray, depth: u32, rays: &mut u64) -> Vec3 {
+        *rays += 1;
+        let Some(hit) = self.scene.intersect(ray) else {
+            return self.background;
+        };
+        let (mat, mut n) = self.shade_info(&hit);
+        let mut ng = hit.normal;
+        let view = -ray.dir().normalize();
+        // Shade the side the ray came from.
+        if ng.dot(view) < 0.0 {
+            ng = -ng;
+            n = -n;
+        }
+        if n.dot(view) < 0.0 {
+            n = ng;
+        }
+        let hp = ray.at(hit.t);
+        // Leave the surface by a little more than rounding can move a hit point.
+        let p = hp + ng * self.epsilon.max(hp.abs().max_element() * 1e-6);
+        let mut color = mat.ambient * self.ambient;
+        for light in &self.lights {
+            let (l, dist, radiance) = match *light {
+                Light::Point(pos, intensity) => {
+                    let to = pos - p;
+                    let d2 = to.length_squared();
+                    let d = d2.sqrt();
+                    (to / d, d, intensity / d2)
+                }
+                Light::Directional(to_light, radiance) => (to_light, f32::INFINITY, radiance),
+            };
+            let cos = n.dot(l);
+            if cos <= 0.0 || ng.dot(l) <= 0.0 {
+                continue;
+            }
+            *rays += 1;
+            if self
+                .scene
+                .occluded(&Ray::new(p, l, 0.0, dist * (1.0 - 1e-4)))
+            {
+                continue;
+            }
+            color += mat.diffuse * radiance * cos;
+            if mat.specular != Vec3::ZERO {
+                let h = (l + view).normalize_or_zero();
+                color += mat.specular * radiance * n.dot(h).max(0.0).powf(mat.shininess);
+            }
+        }
+        if mat.mirror != Vec3::ZERO && depth < self.max_depth {
+            let d = ray.dir().normalize();
+            let r = d - 2.0 * d.dot(n) * n;
+            color += mat.mirror * self.trace(&Ray::infinite(p, r), depth + 1, rays);
+        }
+        color
+    }
+
+    /// Nodes visited plus primitives tested by the camera ray.
+    pub fn cost(&self, ray: &Ray) -> u64 {
+        let mut c = CountStats::default();
+        self.scene.intersect_count(ray, &mut c);
+        c.nodes + c.prims
+    }
+}

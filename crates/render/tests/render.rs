@@ -1,0 +1,188 @@
+//! Renderer tests: every structure renders the same image, analytic
+//! checks of coverage and radiance, and scene errors with their places.
+
+use raymesh_accel::AccelKind;
+use raymesh_geometry::Vec3;
+use raymesh_render::{render, Mode, Options, SceneDesc, World};
+use std::path::Path;
+
+fn world(json: &str) -> World {
+    let desc = SceneDesc::parse(json, Path::new("test.json")).unwrap_or_else(|e| panic!("{e}"));
+    World::build(&desc, Path::new("test.json"), &|name| {
+        if name == "builtin:torus-knot" {
+            Ok(raymesh_render::torus_knot(64, 12))
+        } else {
+            raymesh_mesh::io::read_mesh(
+                Path::new(env!("CARGO_MANIFEST_DIR"))
+                    .join("../../tests/data")
+                    .join(name),
+            )
+            .map_err(|e| e.to_string())
+        }
+    })
+    .unwrap_or_else(|e| panic!("{e}"))
+}
+
+fn shade(w: &World) -> Vec<Vec3> {
+    render(w, Options { mode: Mode::Shade }, &|_, _| {}).pixels
+}
+
+#[test]
+fn every_structure_renders_the_same_image() {
+    let mut desc = raymesh_render::demo_scene();
+    desc.image.width = 96;
+    desc.image.height = 72;
+    desc.image.spp = 2;
+    // A real mesh with holes, instanced, beside the demo's knot.
+    {
+        let surfaces = &mut desc.surfaces;
+        let extra = r#"{"type": "mesh", "file": "elephant-with-holes.off", "shading": "flat",
+            "instances": [{"translate": [3, 0.5, 2], "scale": 1.5}, {"translate": [-3, 0.5, 2], "rotate": [0, 90, 0], "scale": 1.5}]}"#;
+        surfaces.push(serde_json::from_str(extra).unwrap());
+    }
+    let mut reference: Option<Vec<Vec3>> = None;
+    for kind in AccelKind::ALL {
+        desc.accel = kind.name().to_string();
+        let w = World::build(&desc, Path::new("demo"), &|name| {
+            if name == "builtin:torus-knot" {
+                Ok(raymesh_render::torus_knot(96, 16))
+            } else {
+                raymesh_mesh::io::read_mesh(
+                    Path::new(env!("CARGO_MANIFEST_DIR"))
+                        .join("../../tests/data")
+                        .join(name),
+                )
+                .map_err(|e| e.to_string())
+            }
+        })
+        .unwrap();
+        let img = shade(&w);
+        match &reference {
+            None => reference = Some(img),
+            Some(r) => {
+                let same = r
+                    .iter()
+                    .zip(&img)
+                    .all(|(a, b)| a.to_array().map(f32::to_bits) == b.to_array().map(f32::to_bits));
+                assert!(same, "{kind} renders another image than brute force");
+            }
+        }
+    }
+}
+
+#[test]
+fn a_sphere_covers_the_disc_it_must() {
+    // Camera at distance D looking at a sphere of radius r: its silhouette is
+    // a disc of angular radius asin(r / D).
+    let (d, r, fov, size) = (10.0f32, 2.0f32, 40.0f32, 201u32);
+    let w = world(&format!(
+        r#"{{"camera": {{"eye": [0, 0, {d}], "target": [0, 0, 0], "fov": {fov}}},
+            "image": {{"width": {size}, "height": {size}, "spp": 1, "background": [0, 0, 0]}},
+            "lights": [{{"type": "ambient"}}],
+            "materials": {{"white": {{"ambient": [1, 1, 1], "diffuse": [0, 0, 0]}}}},
+            "surfaces": [{{"type": "sphere", "center": [0, 0, 0], "radius": {r}, "material": "white"}}]}}"#
+    ));
+    let img = shade(&w);
+    let covered = img.iter().filter(|p| p.x > 0.5).count() as f32;
+    let alpha = (r / d).asin();
+    let half = (fov.to_radians() / 2.0).tan();
+    let disc_px = alpha.tan() / half * size as f32 / 2.0;
+    let expected = std::f32::consts::PI * disc_px * disc_px;
+    assert!(
+        (covered - expected).abs() / expected < 0.02,
+        "{covered} pixels, expected {expected}"
+    );
+    // Unlit by anything but ambient 1 × reflectance 1: exactly 1.
+    assert_eq!(img[(size * size / 2) as usize], Vec3::ONE);
+}
+
+#[test]
+fn a_lambert_plane_has_the_radiance_it_must() {
+    // Point light of intensity I at height h above the plane point seen in
+    // the image centre: irradiance I / h², radiance kd · I / h² (cos = 1).
+    let (h, intensity, kd) = (2.0f32, 8.0f32, 0.5f32);
+    let w = world(&format!(
+        r#"{{"camera": {{"eye": [0, 5, 0.001], "target": [0, 0, 0], "up": [0, 0, -1], "fov": 30}},
+            "image": {{"width": 33, "height": 33, "spp": 1}},
+            "lights": [{{"type": "point", "position": [0, {h}, 0], "intensity": {intensity}}}],
+            "materials": {{"m": {{"ambient": [0, 0, 0], "diffuse": [{kd}, {kd}, {kd}]}}}},
+            "surfaces": [
+              {{"type": "triangle", "vertices": [[-10, 0, -10], [-10, 0, 10], [10, 0, 10]], "material": "m"}},
+              {{"type": "triangle", "vertices": [[-10, 0, -10], [10, 0, 10], [10, 0, -10]], "material": "m"}}]}}"#
+    ));
+    let img = shade(&w);
+    let centre = img[(33 * 16 + 16) as usize];
+    let expected = kd * intensity / (h * h);
+    assert!(
+        (centre.x - expected).abs() < 1e-3 * expected,
+        "{centre} vs {expected}"
+    );
+    // Farther from the light's foot, cos θ / r² falls off.
+    assert!(img[(33 * 16) as usize].x < centre.x);
+}
+
+#[test]
+fn shadows_fall_where_they_must() {
+    // Light at (0, 4, 0), sphere of radius 0.2 at (0.4, 2, 0): its shadow
+    // covers x in [0.4, 1.2] on the plane. The camera looks straight down
+    // from y = 5 with +x to the right; the sphere hides the shadow's near
+    // part, and x ≈ 1.06 (column 30 of 33, 16.5 columns per 5 tan 15°) is
+    // plane in shadow.
+    let w = world(
+        r#"{"camera": {"eye": [0, 5, 0.001], "target": [0, 0, 0], "up": [0, 0, -1], "fov": 30},
+            "image": {"width": 33, "height": 33, "spp": 1},
+            "lights": [{"type": "point", "position": [0, 4, 0], "intensity": 16}],
+            "materials": {"m": {"ambient": [0, 0, 0]}},
+            "surfaces": [
+              {"type": "triangle", "vertices": [[-10, 0, -10], [-10, 0, 10], [10, 0, 10]], "material": "m"},
+              {"type": "triangle", "vertices": [[-10, 0, -10], [10, 0, 10], [10, 0, -10]], "material": "m"},
+              {"type": "sphere", "center": [0.4, 2, 0], "radius": 0.2, "material": "m"}]}"#,
+    );
+    let img = shade(&w);
+    let px = |col: u32| img[(33 * 16 + col) as usize].x;
+    assert_eq!(px(30), 0.0, "the shadow");
+    assert!(
+        px(2) > 0.5,
+        "the same distance on the other side is lit: {}",
+        px(2)
+    );
+}
+
+fn scene_err(json: &str) -> String {
+    let file = Path::new("bad.json");
+    match SceneDesc::parse(json, file) {
+        Err(e) => e.to_string(),
+        Ok(desc) => match World::build(&desc, file, &|name| {
+            Err(format!("{name}: cannot read: no such file"))
+        }) {
+            Err(e) => e.to_string(),
+            Ok(_) => panic!("no error for {json}"),
+        },
+    }
+}
+
+#[test]
+fn scene_errors_name_file_line_and_path() {
+    let cam = r#""camera": {"eye": [0, 0, 5], "target": [0, 0, 0]}"#;
+    let cases = [
+        (format!("{{{cam}, \"surfaces\": [{{\"type\": \"sphere\", \"center\": [0, 0, 0], \"radius\": \"big\"}}]}}"),
+         ["bad.json:1:", "at surfaces[0].radius", "invalid type: string \"big\""]),
+        (format!("{{{cam},\n \"colour\": 1}}"), ["bad.json:2:", "unknown field `colour`", "expected one of"]),
+        (format!("{{{cam}, \"surfaces\": [{{\"type\": \"cube\"}}]}}"), ["bad.json:1:", "at surfaces[0]", "unknown variant `cube`"]),
+        (format!("{{{cam}, \"surfaces\": [{{\"type\": \"sphere\", \"center\": [0, 0, 0], \"radius\": 1, \"material\": \"gold\"}}]}}"),
+         ["bad.json", "at surfaces[0].material", "unknown material 'gold'"]),
+        (format!("{{{cam}, \"surfaces\": [{{\"type\": \"mesh\", \"file\": \"nope.off\"}}]}}"), ["bad.json", "at surfaces[0].file", "nope.off: cannot read"]),
+        (format!("{{{cam}, \"accel\": \"octree\"}}"), ["bad.json", "at accel", "unknown structure 'octree'"]),
+        (format!("{{{cam}, \"image\": {{\"spp\": 0}}}}"), ["bad.json", "at image.spp", "samples per pixel"]),
+        (r#"{"camera": {"eye": [0, 0, 0], "target": [0, 0, 0]}}"#.to_string(), ["bad.json", "at camera", "degenerate camera"]),
+        ("{\"camera\": {\"eye\": [0, 0, 5], \"target\": [0, 0, 0]},\n\n \"lights\": [{\"type\": \"point\"}]}".to_string(),
+         ["bad.json:3:", "at lights[0]", "missing field `position`"]),
+        ("{ \"camera\": ".to_string(), ["bad.json:1:", "EOF", ""]),
+    ];
+    for (json, wants) in cases {
+        let msg = scene_err(&json);
+        for want in wants {
+            assert!(msg.contains(want), "'{msg}' lacks '{want}'");
+        }
+    }
+}
