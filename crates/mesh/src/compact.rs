@@ -1,0 +1,162 @@
+//! The compact triangle mesh: directed edges (Campagna, Botsch & Kobbelt,
+//! "Directed edges — a scalable representation for triangle meshes", 1998),
+//! a corner table. Half-edge `3f + i` is corner `i` of triangle `f`, so
+//! `next`, `prev` and `face` are arithmetic; only each half-edge's start
+//! vertex and its opposite are stored, plus one half-edge per vertex.
+
+use crate::handle::{Face, HalfEdge, Vertex};
+use crate::HalfEdgeMesh;
+use raymesh_geometry::Vec3;
+
+/// A directed-edge triangle mesh.
+#[derive(Clone, Debug, Default)]
+pub struct CompactMesh {
+    positions: Vec<Vec3>,
+    /// Start vertex of half-edge `h` (= the vertex at corner `h`).
+    corner_vertex: Vec<Vertex>,
+    /// Opposite half-edge; invalid on a boundary.
+    opposite: Vec<HalfEdge>,
+    /// An outgoing half-edge per vertex: on a boundary, the first one counter-clockwise.
+    v_half: Vec<HalfEdge>,
+}
+
+impl CompactMesh {
+    /// The directed-edge form of a triangle half-edge mesh (faces keep their
+    /// numbers); `None` if a face is not a triangle.
+    #[must_use]
+    pub fn from_half_edge(m: &HalfEdgeMesh) -> Option<Self> {
+        if !m.is_triangle_mesh() {
+            return None;
+        }
+        let nf = m.num_faces();
+        // Where each half-edge of `m` lands: 3f + corner.
+        let mut slot = vec![HalfEdge::INVALID; m.num_halfedges()];
+        let mut corner_vertex = vec![Vertex::INVALID; 3 * nf];
+        for f in m.faces() {
+            for (i, h) in m.face_halfedges(f).enumerate() {
+                slot[h.idx()] = HalfEdge::new(3 * f.idx() + i);
+                corner_vertex[3 * f.idx() + i] = m.from_vertex(h);
+            }
+        }
+        let mut opposite = vec![HalfEdge::INVALID; 3 * nf];
+        let mut v_half = vec![HalfEdge::INVALID; m.num_vertices()];
+        for h in 0..m.num_halfedges() {
+            let h = HalfEdge::new(h);
+            let s = slot[h.idx()];
+            if !s.is_valid() {
+                continue;
+            }
+            let o = slot[h.twin().idx()];
+            opposite[s.idx()] = o;
+            let v = m.from_vertex(h);
+            // The first outgoing half-edge counter-clockwise has no clockwise neighbour.
+            if !v_half[v.idx()].is_valid() || !o.is_valid() {
+                v_half[v.idx()] = s;
+            }
+        }
+        Some(Self {
+            positions: m.positions().to_vec(),
+            corner_vertex,
+            opposite,
+            v_half,
+        })
+    }
+
+    /// Next half-edge in the triangle.
+    #[inline(always)]
+    #[must_use]
+    pub fn next(h: HalfEdge) -> HalfEdge {
+        HalfEdge(if h.0 % 3 == 2 { h.0 - 2 } else { h.0 + 1 })
+    }
+
+    /// Previous half-edge in the triangle.
+    #[inline(always)]
+    #[must_use]
+    pub fn prev(h: HalfEdge) -> HalfEdge {
+        HalfEdge(if h.0 % 3 == 0 { h.0 + 2 } else { h.0 - 1 })
+    }
+
+    /// Triangle of a half-edge.
+    #[inline(always)]
+    #[must_use]
+    pub fn face(h: HalfEdge) -> Face {
+        Face(h.0 / 3)
+    }
+
+    /// Start vertex of a half-edge.
+    #[inline(always)]
+    #[must_use]
+    pub fn from_vertex(&self, h: HalfEdge) -> Vertex {
+        self.corner_vertex[h.idx()]
+    }
+
+    /// End vertex of a half-edge.
+    #[inline(always)]
+    #[must_use]
+    pub fn to_vertex(&self, h: HalfEdge) -> Vertex {
+        self.corner_vertex[Self::next(h).idx()]
+    }
+
+    /// Opposite half-edge (invalid on a boundary).
+    #[inline(always)]
+    #[must_use]
+    pub fn opposite(&self, h: HalfEdge) -> HalfEdge {
+        self.opposite[h.idx()]
+    }
+
+    /// Outgoing half-edges of `v`, counter-clockwise (from the boundary, if any).
+    pub fn outgoing_halfedges(&self, v: Vertex) -> impl Iterator<Item = HalfEdge> + '_ {
+        let start = self.v_half[v.idx()];
+        let mut cur = start;
+        std::iter::from_fn(move || {
+            if !cur.is_valid() {
+                return None;
+            }
+            let h = cur;
+            let n = self.opposite(Self::prev(h));
+            cur = if n == start { HalfEdge::INVALID } else { n };
+            Some(h)
+        })
+    }
+
+    /// Neighbouring vertices of `v`, counter-clockwise; on a boundary the
+    /// last neighbour (across the boundary edge that ends at `v`) is included.
+    pub fn vertex_vertices(&self, v: Vertex) -> impl Iterator<Item = Vertex> + '_ {
+        let mut last = HalfEdge::INVALID;
+        let mut done = false;
+        let mut out = self.outgoing_halfedges(v);
+        std::iter::from_fn(move || {
+            if let Some(h) = out.next() {
+                last = h;
+                return Some(self.to_vertex(h));
+            }
+            // A boundary fan ends at an edge with no opposite: its far vertex is a neighbour too.
+            if !done && last.is_valid() && !self.opposite(Self::prev(last)).is_valid() {
+                done = true;
+                return Some(self.from_vertex(Self::prev(last)));
+            }
+            None
+        })
+    }
+
+    /// Number of triangles.
+    #[must_use]
+    pub fn num_faces(&self) -> usize {
+        self.corner_vertex.len() / 3
+    }
+
+    /// Position of a vertex.
+    #[must_use]
+    pub fn position(&self, v: Vertex) -> Vec3 {
+        self.positions[v.idx()]
+    }
+
+    /// Bytes of the structure's arrays (positions included).
+    #[must_use]
+    pub fn memory_bytes(&self) -> usize {
+        self.positions.len() * 12
+            + self.corner_vertex.len() * 4
+            + self.opposite.len() * 4
+            + self.v_half.len() * 4
+    }
+}

@@ -1,0 +1,246 @@
+//! Walks around vertices and faces, and whole-mesh properties.
+
+use super::HalfEdgeMesh;
+use crate::handle::{Edge, Face, HalfEdge, Vertex};
+use raymesh_geometry::Vec3;
+
+/// Outgoing half-edges of a vertex, counter-clockwise (see
+/// [`HalfEdgeMesh::outgoing_halfedges`]).
+pub struct Outgoing<'a> {
+    mesh: &'a HalfEdgeMesh,
+    start: HalfEdge,
+    cur: HalfEdge,
+}
+
+impl Iterator for Outgoing<'_> {
+    type Item = HalfEdge;
+    #[inline]
+    fn next(&mut self) -> Option<HalfEdge> {
+        let h = self.cur;
+        if !h.is_valid() {
+            return None;
+        }
+        let n = self.mesh.ccw_rotated(h);
+        self.cur = if n == self.start {
+            HalfEdge::INVALID
+        } else {
+            n
+        };
+        Some(h)
+    }
+}
+
+/// Half-edges of a face in order (see [`HalfEdgeMesh::face_halfedges`]).
+pub struct FaceLoop<'a> {
+    mesh: &'a HalfEdgeMesh,
+    start: HalfEdge,
+    cur: HalfEdge,
+}
+
+impl Iterator for FaceLoop<'_> {
+    type Item = HalfEdge;
+    #[inline]
+    fn next(&mut self) -> Option<HalfEdge> {
+        let h = self.cur;
+        if !h.is_valid() {
+            return None;
+        }
+        let n = self.mesh.next_halfedge(h);
+        self.cur = if n == self.start {
+            HalfEdge::INVALID
+        } else {
+            n
+        };
+        Some(h)
+    }
+}
+
+impl HalfEdgeMesh {
+    /// The next outgoing half-edge counter-clockwise around its start vertex.
+    #[inline]
+    #[must_use]
+    pub fn ccw_rotated(&self, h: HalfEdge) -> HalfEdge {
+        self.prev_halfedge(h).twin()
+    }
+
+    /// The next outgoing half-edge clockwise around its start vertex.
+    #[inline(always)]
+    #[must_use]
+    pub fn cw_rotated(&self, h: HalfEdge) -> HalfEdge {
+        self.next_halfedge(h.twin())
+    }
+
+    /// Outgoing half-edges of `v`, counter-clockwise, starting with its
+    /// boundary half-edge when it has one.
+    #[must_use]
+    pub fn outgoing_halfedges(&self, v: Vertex) -> Outgoing<'_> {
+        let h = self.vertex_halfedge(v);
+        Outgoing {
+            mesh: self,
+            start: h,
+            cur: h,
+        }
+    }
+
+    /// Neighbouring vertices of `v`, counter-clockwise.
+    pub fn vertex_vertices(&self, v: Vertex) -> impl Iterator<Item = Vertex> + '_ {
+        self.outgoing_halfedges(v).map(|h| self.to_vertex(h))
+    }
+
+    /// Faces around `v`, counter-clockwise.
+    pub fn vertex_faces(&self, v: Vertex) -> impl Iterator<Item = Face> + '_ {
+        self.outgoing_halfedges(v)
+            .map(|h| self.face(h))
+            .filter(|f| f.is_valid())
+    }
+
+    /// Edges around `v`, counter-clockwise.
+    pub fn vertex_edges(&self, v: Vertex) -> impl Iterator<Item = Edge> + '_ {
+        self.outgoing_halfedges(v).map(HalfEdge::edge)
+    }
+
+    /// Number of edges at `v`.
+    #[must_use]
+    pub fn valence(&self, v: Vertex) -> usize {
+        self.outgoing_halfedges(v).count()
+    }
+
+    /// Half-edges of face `f`, in its winding order.
+    #[must_use]
+    pub fn face_halfedges(&self, f: Face) -> FaceLoop<'_> {
+        let h = self.face_halfedge(f);
+        FaceLoop {
+            mesh: self,
+            start: h,
+            cur: h,
+        }
+    }
+
+    /// Vertices of face `f`, in its winding order, starting where it started in the input.
+    pub fn face_vertices(&self, f: Face) -> impl Iterator<Item = Vertex> + '_ {
+        self.face_halfedges(f).map(|h| self.from_vertex(h))
+    }
+
+    /// Faces across the edges of `f` (boundary edges have none and are skipped).
+    pub fn face_faces(&self, f: Face) -> impl Iterator<Item = Face> + '_ {
+        self.face_halfedges(f)
+            .map(|h| self.face(h.twin()))
+            .filter(|f| f.is_valid())
+    }
+
+    /// Number of vertices of face `f`.
+    #[must_use]
+    pub fn face_degree(&self, f: Face) -> usize {
+        self.face_halfedges(f).count()
+    }
+
+    /// Every boundary loop, as its half-edges in order.
+    #[must_use]
+    pub fn boundary_loops(&self) -> Vec<Vec<HalfEdge>> {
+        let mut seen = vec![false; self.num_halfedges()];
+        let mut loops = Vec::new();
+        for h in 0..self.num_halfedges() {
+            let h = HalfEdge::new(h);
+            if seen[h.idx()] || !self.is_boundary_halfedge(h) {
+                continue;
+            }
+            let mut l = Vec::new();
+            let mut c = h;
+            while !seen[c.idx()] {
+                seen[c.idx()] = true;
+                l.push(c);
+                c = self.next_halfedge(c);
+            }
+            loops.push(l);
+        }
+        loops
+    }
+
+    /// Connected components (isolated vertices count as one each) and each vertex's component.
+    #[must_use]
+    pub fn components(&self) -> (usize, Vec<u32>) {
+        let mut label = vec![u32::MAX; self.num_vertices()];
+        let mut count = 0u32;
+        let mut stack = Vec::new();
+        for v in self.vertices() {
+            if label[v.idx()] != u32::MAX {
+                continue;
+            }
+            label[v.idx()] = count;
+            stack.push(v);
+            while let Some(u) = stack.pop() {
+                for w in self.vertex_vertices(u) {
+                    if label[w.idx()] == u32::MAX {
+                        label[w.idx()] = count;
+                        stack.push(w);
+                    }
+                }
+            }
+            count += 1;
+        }
+        (count as usize, label)
+    }
+
+    /// Euler characteristic `V - E + F`.
+    #[must_use]
+    pub fn euler_characteristic(&self) -> i64 {
+        self.num_vertices() as i64 - self.num_edges() as i64 + self.num_faces() as i64
+    }
+
+    /// Total genus of an orientable mesh, from `χ = 2c - 2g - b` over its
+    /// `c` components and `b` boundary loops.
+    #[must_use]
+    pub fn genus(&self) -> i64 {
+        let c = self.components().0 as i64;
+        let b = self.boundary_loops().len() as i64;
+        (2 * c - b - self.euler_characteristic()) / 2
+    }
+
+    /// Unit normal of face `f` (Newell's method), zero when degenerate.
+    #[must_use]
+    pub fn face_normal(&self, f: Face) -> Vec3 {
+        let mut n = Vec3::ZERO;
+        for h in self.face_halfedges(f) {
+            let a = self.position(self.from_vertex(h));
+            let b = self.position(self.to_vertex(h));
+            n += Vec3::new(
+                (a.y - b.y) * (a.z + b.z),
+                (a.z - b.z) * (a.x + b.x),
+                (a.x - b.x) * (a.y + b.y),
+            );
+        }
+        n.normalize_or_zero()
+    }
+
+    /// Angle-weighted unit vertex normals (Thürmer & Wüthrich 1998), computed
+    /// face by face: each face adds its normal times its corner angle.
+    #[must_use]
+    pub fn vertex_normals(&self) -> Vec<Vec3> {
+        let mut normals = vec![Vec3::ZERO; self.num_vertices()];
+        for f in self.faces() {
+            let h0 = self.face_halfedge(f);
+            let n = self.face_normal(f);
+            if n == Vec3::ZERO {
+                continue;
+            }
+            // Walk the corners: at the head of h, between h and next(h).
+            let mut h = h0;
+            loop {
+                let nx = self.next_halfedge(h);
+                let v = self.to_vertex(h);
+                let p = self.position(v);
+                let e0 = (self.position(self.from_vertex(h)) - p).normalize_or_zero();
+                let e1 = (self.position(self.to_vertex(nx)) - p).normalize_or_zero();
+                normals[v.idx()] += n * e0.dot(e1).clamp(-1.0, 1.0).acos();
+                h = nx;
+                if h == h0 {
+                    break;
+                }
+            }
+        }
+        for n in &mut normals {
+            *n = n.normalize_or_zero();
+        }
+        normals
+    }
+}

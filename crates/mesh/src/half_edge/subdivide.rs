@@ -1,0 +1,166 @@
+//! Subdivision: Loop for triangle meshes, Catmull–Clark for polygon meshes.
+//! Each level returns a new indexed mesh: old vertices first (moved), then
+//! one vertex per edge (and, for Catmull–Clark, one per face).
+
+use super::HalfEdgeMesh;
+use crate::handle::{Face, HalfEdge, Vertex};
+use crate::IndexedMesh;
+use raymesh_geometry::Vec3;
+
+impl HalfEdgeMesh {
+    /// Whether every face is a triangle.
+    #[must_use]
+    pub fn is_triangle_mesh(&self) -> bool {
+        self.num_halfedges() - self.boundary_halfedge_count() == 3 * self.num_faces()
+    }
+
+    fn boundary_halfedge_count(&self) -> usize {
+        self.h_face.iter().filter(|f| !f.is_valid()).count()
+    }
+
+    /// The two neighbours of a boundary vertex along its boundary.
+    fn boundary_neighbors(&self, v: Vertex) -> (Vertex, Vertex) {
+        let h = self.vertex_halfedge(v);
+        (self.to_vertex(h), self.from_vertex(self.prev_halfedge(h)))
+    }
+
+    /// One level of Loop subdivision (Loop, "Smooth subdivision surfaces
+    /// based on triangles", 1987), with Loop's weights
+    /// `β = (5/8 - (3/8 + cos(2π/n)/4)²) / n` and the boundary rules
+    /// `3/4, 1/8, 1/8` (vertices) and `1/2, 1/2` (edges). `None` if a
+    /// face is not a triangle.
+    #[must_use]
+    pub fn loop_subdivide(&self) -> Option<IndexedMesh> {
+        if !self.is_triangle_mesh() {
+            return None;
+        }
+        let (nv, ne) = (self.num_vertices(), self.num_edges());
+        let mut out =
+            IndexedMesh::with_capacity(nv + ne, 4 * self.num_faces(), 12 * self.num_faces());
+        out.positions.reserve(nv + ne);
+        for v in self.vertices() {
+            let p = self.position(v);
+            let h = self.vertex_halfedge(v);
+            let q = if !h.is_valid() {
+                p
+            } else if self.is_boundary_halfedge(h) {
+                let (a, b) = self.boundary_neighbors(v);
+                0.75 * p + 0.125 * (self.position(a) + self.position(b))
+            } else {
+                let (mut sum, mut n) = (Vec3::ZERO, 0u32);
+                for w in self.vertex_vertices(v) {
+                    sum += self.position(w);
+                    n += 1;
+                }
+                let c = 0.375 + 0.25 * (std::f32::consts::TAU / n as f32).cos();
+                let beta = (0.625 - c * c) / n as f32;
+                (1.0 - n as f32 * beta) * p + beta * sum
+            };
+            out.positions.push(q);
+        }
+        for e in self.edges() {
+            let (h, t) = (e.halfedge(0), e.halfedge(1));
+            let (a, b) = (
+                self.position(self.to_vertex(h)),
+                self.position(self.to_vertex(t)),
+            );
+            let q = if self.is_boundary_edge(e) {
+                0.5 * (a + b)
+            } else {
+                let c = self.position(self.to_vertex(self.next_halfedge(h)));
+                let d = self.position(self.to_vertex(self.next_halfedge(t)));
+                0.375 * (a + b) + 0.125 * (c + d)
+            };
+            out.positions.push(q);
+        }
+        let ev = |h: HalfEdge| (nv + h.edge().idx()) as u32;
+        for f in self.faces() {
+            let h0 = self.face_halfedge(f);
+            let h1 = self.next_halfedge(h0);
+            let h2 = self.next_halfedge(h1);
+            let (a, b, c) = (
+                self.from_vertex(h0).0,
+                self.from_vertex(h1).0,
+                self.from_vertex(h2).0,
+            );
+            let (ab, bc, ca) = (ev(h0), ev(h1), ev(h2));
+            out.push_face_unchecked(&[a, ab, ca]);
+            out.push_face_unchecked(&[b, bc, ab]);
+            out.push_face_unchecked(&[c, ca, bc]);
+            out.push_face_unchecked(&[ab, bc, ca]);
+        }
+        Some(out)
+    }
+
+    /// One level of Catmull–Clark subdivision (Catmull & Clark, "Recursively
+    /// generated B-spline surfaces on arbitrary topological meshes", 1978):
+    /// every face becomes quads; boundaries follow the cubic B-spline rules.
+    #[must_use]
+    pub fn catmull_clark(&self) -> IndexedMesh {
+        let (nv, ne, nf) = (self.num_vertices(), self.num_edges(), self.num_faces());
+        let mut out = IndexedMesh::with_capacity(
+            nv + ne + nf,
+            self.num_halfedges(),
+            4 * self.num_halfedges(),
+        );
+        let face_pts: Vec<Vec3> = self
+            .faces()
+            .map(|f| {
+                let (mut s, mut n) = (Vec3::ZERO, 0.0);
+                for v in self.face_vertices(f) {
+                    s += self.position(v);
+                    n += 1.0;
+                }
+                s / n
+            })
+            .collect();
+        let fp = |f: Face| face_pts[f.idx()];
+        for v in self.vertices() {
+            let p = self.position(v);
+            let h = self.vertex_halfedge(v);
+            let q = if !h.is_valid() {
+                p
+            } else if self.is_boundary_halfedge(h) {
+                let (a, b) = self.boundary_neighbors(v);
+                0.75 * p + 0.125 * (self.position(a) + self.position(b))
+            } else {
+                let (mut f_sum, mut r_sum, mut n) = (Vec3::ZERO, Vec3::ZERO, 0.0f32);
+                for o in self.outgoing_halfedges(v) {
+                    f_sum += fp(self.face(o));
+                    r_sum += 0.5 * (p + self.position(self.to_vertex(o)));
+                    n += 1.0;
+                }
+                (f_sum / n + 2.0 * r_sum / n + (n - 3.0) * p) / n
+            };
+            out.positions.push(q);
+        }
+        for e in self.edges() {
+            let (h, t) = (e.halfedge(0), e.halfedge(1));
+            let (a, b) = (
+                self.position(self.to_vertex(h)),
+                self.position(self.to_vertex(t)),
+            );
+            let q = if self.is_boundary_edge(e) {
+                0.5 * (a + b)
+            } else {
+                0.25 * (a + b + fp(self.face(h)) + fp(self.face(t)))
+            };
+            out.positions.push(q);
+        }
+        out.positions.extend_from_slice(&face_pts);
+        for f in self.faces() {
+            let c = (nv + ne + f.idx()) as u32;
+            for h in self.face_halfedges(f) {
+                // The quad at h's start vertex: vertex, edge(h), face, edge(prev(h)).
+                let p = self.prev_halfedge(h);
+                out.push_face_unchecked(&[
+                    self.from_vertex(h).0,
+                    (nv + h.edge().idx()) as u32,
+                    c,
+                    (nv + p.edge().idx()) as u32,
+                ]);
+            }
+        }
+        out
+    }
+}

@@ -1,0 +1,264 @@
+//! Half-edge mesh tests: real meshes, repairs, walks, subdivision.
+
+use super::*;
+use crate::io::read_mesh;
+use crate::IndexedMesh;
+use proptest::prelude::*;
+use std::path::PathBuf;
+
+fn data(name: &str) -> IndexedMesh {
+    read_mesh(
+        PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("../../tests/data")
+            .join(name),
+    )
+    .unwrap()
+}
+
+fn build(m: &IndexedMesh) -> (HalfEdgeMesh, RepairReport) {
+    let (h, r) = HalfEdgeMesh::build(m, BuildOptions::default()).unwrap();
+    h.validate().unwrap_or_else(|e| panic!("invalid: {e}"));
+    (h, r)
+}
+
+#[test]
+fn fixtures_build_clean_with_the_right_topology() {
+    // name, V, E, F, boundary loops, components, χ, genus
+    for (name, v, e, f, b, c, chi, g) in [
+        ("tetrahedron.off", 4, 6, 4, 0, 1, 2, 0),
+        ("cube_quad.off", 8, 12, 6, 0, 1, 2, 0),
+        ("sphere.ply", 162, 480, 320, 0, 1, 2, 0),
+        ("double-torus-example.off", 231, 453, 220, 0, 1, -2, 2),
+        ("mesh_with_border.off", 548, 1561, 1014, 1, 1, 1, 0),
+    ] {
+        let (h, r) = build(&data(name));
+        assert!(r.is_clean(), "{name}: {r:?}");
+        let got = (
+            h.num_vertices(),
+            h.num_edges(),
+            h.num_faces(),
+            h.boundary_loops().len(),
+            h.components().0,
+            h.euler_characteristic(),
+            h.genus(),
+        );
+        assert_eq!(got, (v, e, f, b, c, chi, g), "{name}");
+    }
+}
+
+#[test]
+fn round_trip_keeps_faces_in_order() {
+    for name in ["cube_quad.off", "elephant-with-holes.off", "sphere.ply"] {
+        let m = data(name);
+        let (h, r) = build(&m);
+        if r.is_clean() {
+            assert_eq!(h.to_indexed(), m, "{name}");
+        }
+        assert_eq!(h.num_faces(), m.num_faces());
+    }
+}
+
+#[test]
+fn walks_are_counter_clockwise_and_complete() {
+    // A fan of 6 triangles around vertex 0 in the z = 0 plane, CCW seen from +z.
+    let mut p = vec![Vec3::ZERO];
+    for i in 0..6 {
+        let a = i as f32 * std::f32::consts::TAU / 6.0;
+        p.push(Vec3::new(a.cos(), a.sin(), 0.0));
+    }
+    let tris: Vec<[u32; 3]> = (0..6).map(|i| [0, 1 + i, 1 + (i + 1) % 6]).collect();
+    let (h, _) = build(&IndexedMesh::from_triangles(p.clone(), &tris).unwrap());
+    let ring: Vec<u32> = h.vertex_vertices(Vertex(0)).map(|v| v.0).collect();
+    assert_eq!(ring.len(), 6);
+    for w in ring.windows(2) {
+        let (a, b) = (p[w[0] as usize], p[w[1] as usize]);
+        assert!(a.cross(b).z > 0.0, "not counter-clockwise: {ring:?}");
+    }
+    assert_eq!(h.valence(Vertex(0)), 6);
+    assert_eq!(h.vertex_faces(Vertex(0)).count(), 6);
+    assert!(!h.is_boundary_vertex(Vertex(0)));
+    // A boundary vertex: 3 edges, 2 faces, starts at its boundary half-edge.
+    assert!(h.is_boundary_vertex(Vertex(1)));
+    assert_eq!(h.valence(Vertex(1)), 3);
+    assert_eq!(h.vertex_faces(Vertex(1)).count(), 2);
+    let ring1: Vec<u32> = h.vertex_vertices(Vertex(1)).map(|v| v.0).collect();
+    assert_eq!(ring1.len(), 3);
+    // Faces: vertices in input order, three neighbours for an inner triangle.
+    assert_eq!(
+        h.face_vertices(Face(2)).map(|v| v.0).collect::<Vec<_>>(),
+        vec![0, 3, 4]
+    );
+    assert_eq!(h.face_faces(Face(2)).count(), 2);
+    assert_eq!(h.boundary_loops().len(), 1);
+    assert_eq!(h.boundary_loops()[0].len(), 6);
+}
+
+#[test]
+fn repairs_keep_every_face_and_report_them() {
+    let p = |n: usize| {
+        (0..n)
+            .map(|i| Vec3::new(i as f32, (i * i % 7) as f32, (i % 3) as f32))
+            .collect::<Vec<_>>()
+    };
+    // Bowtie: two triangles sharing only vertex 0.
+    let (h, r) = build(&IndexedMesh::from_triangles(p(5), &[[0, 1, 2], [0, 3, 4]]).unwrap());
+    assert_eq!(
+        (r.non_manifold_vertices, r.added_vertices, h.num_faces()),
+        (1, 1, 2)
+    );
+    // Three triangles on edge 0-1.
+    let (h, r) =
+        build(&IndexedMesh::from_triangles(p(5), &[[0, 1, 2], [1, 0, 3], [0, 1, 4]]).unwrap());
+    assert_eq!((r.non_manifold_edges, h.num_faces()), (1, 3));
+    assert!(r.added_edges >= 1);
+    // Two triangles running the same way along 0-1.
+    let (h, r) = build(&IndexedMesh::from_triangles(p(4), &[[0, 1, 2], [0, 1, 3]]).unwrap());
+    assert_eq!((r.inconsistent_edges, h.num_faces()), (1, 2));
+    // A repeated face, and a face naming a vertex twice.
+    let (h, r) =
+        build(&IndexedMesh::from_triangles(p(4), &[[0, 1, 2], [1, 2, 0], [0, 0, 3]]).unwrap());
+    assert_eq!(r.repeated_faces, vec![1]);
+    assert_eq!(r.degenerate_faces, vec![2]);
+    assert_eq!(h.num_faces(), 3);
+    // Strict mode names the faces.
+    let m = IndexedMesh::from_triangles(p(5), &[[0, 1, 2], [1, 0, 3], [0, 1, 4]]).unwrap();
+    let e = HalfEdgeMesh::build(&m, BuildOptions { strict: true })
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("1 non-manifold edges") && e.contains("faces 0, 1, 2"),
+        "{e}"
+    );
+}
+
+#[test]
+fn loop_and_catmull_clark_counts_and_validity() {
+    let (h, _) = build(&data("sphere.ply"));
+    let l = h.loop_subdivide().unwrap();
+    assert_eq!(l.num_vertices(), 162 + 480);
+    assert_eq!(l.num_faces(), 4 * 320);
+    let (h2, r) = build(&l);
+    assert!(r.is_clean());
+    assert_eq!((h2.euler_characteristic(), h2.genus()), (2, 0));
+    // Loop's limit surface of a convex mesh lies inside its hull: the radius shrinks.
+    let max_r = |m: &IndexedMesh| {
+        m.positions
+            .iter()
+            .map(|p| p.length())
+            .fold(0.0f32, f32::max)
+    };
+    assert!(max_r(&l) <= max_r(&data("sphere.ply")) + 1e-6);
+    // An open mesh keeps one boundary loop, twice as long.
+    let (b, _) = build(&data("mesh_with_border.off"));
+    let (b2, _) = build(&b.loop_subdivide().unwrap());
+    assert_eq!(b2.boundary_loops().len(), 1);
+    assert_eq!(
+        b2.boundary_loops()[0].len(),
+        2 * b.boundary_loops()[0].len()
+    );
+    // Quads refuse Loop; Catmull–Clark makes quads.
+    let (c, _) = build(&data("cube_quad.off"));
+    assert!(c.loop_subdivide().is_none());
+    let cc = c.catmull_clark();
+    assert_eq!((cc.num_vertices(), cc.num_faces()), (26, 24));
+    assert!(cc.faces().all(|f| f.len() == 4));
+    let (c2, r) = build(&cc);
+    assert!(r.is_clean());
+    assert_eq!(c2.euler_characteristic(), 2);
+    // Cube corners move inward, towards the sphere the limit resembles.
+    assert!(cc.positions[0].length() < 3f32.sqrt());
+}
+
+#[test]
+fn normals_point_out_of_a_closed_mesh() {
+    let (h, _) = build(&data("sphere.ply"));
+    for (v, n) in h.vertex_normals().iter().enumerate() {
+        let p = h.position(Vertex::new(v)).normalize();
+        assert!(n.dot(p) > 0.95, "vertex {v}: {n} vs {p}");
+    }
+    let flat = crate::normals::vertex_normals(&h.to_indexed());
+    for (a, b) in flat.iter().zip(h.vertex_normals()) {
+        assert!((*a - b).length() < 1e-5);
+    }
+}
+
+#[test]
+fn memory_is_within_96_bytes_per_vertex_on_a_closed_triangle_mesh() {
+    let (h, _) = build(&data("sphere.ply"));
+    let per_vertex = h.memory_bytes() as f64 / h.num_vertices() as f64;
+    assert!(per_vertex <= 96.0, "{per_vertex}");
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 2000, failure_persistence: None, ..ProptestConfig::default() })]
+
+    /// Any soup of triangles over few vertices (so non-manifold edges,
+    /// fans, flips, repeats and degenerate faces abound) builds into a valid
+    /// mesh that keeps every face and converts back face for face.
+    #[test]
+    fn any_soup_builds_valid_and_keeps_every_face(tris in proptest::collection::vec((0u32..7, 0u32..7, 0u32..7), 0..25)) {
+        let p: Vec<Vec3> = (0..7).map(|i| Vec3::new(i as f32, (i * 3 % 5) as f32, (i % 2) as f32)).collect();
+        let tris: Vec<[u32; 3]> = tris.into_iter().map(|(a, b, c)| [a, b, c]).collect();
+        let m = IndexedMesh::from_triangles(p, &tris).unwrap();
+        let (h, r) = HalfEdgeMesh::build(&m, BuildOptions::default()).unwrap();
+        prop_assert!(h.validate().is_ok(), "{:?} -> {:?}", tris, h.validate());
+        prop_assert_eq!(h.num_faces(), tris.len());
+        let back = h.to_indexed();
+        // Same faces, up to the vertices that repairs duplicated (same positions).
+        for (f, t) in back.faces().zip(&tris) {
+            let pos = |i: u32| back.positions[i as usize];
+            prop_assert_eq!([pos(f[0]), pos(f[1]), pos(f[2])], [m.positions[t[0] as usize], m.positions[t[1] as usize], m.positions[t[2] as usize]]);
+        }
+        if r.is_clean() {
+            prop_assert_eq!(back, m);
+        }
+    }
+}
+
+/// Whether `b` is a rotation of `a`.
+fn same_cycle(a: &[u32], b: &[u32]) -> bool {
+    a.len() == b.len()
+        && (a.is_empty()
+            || (0..a.len()).any(|k| a.iter().cycle().skip(k).take(a.len()).eq(b.iter())))
+}
+
+#[test]
+fn winged_edge_and_compact_agree_with_half_edge() {
+    use crate::{CompactMesh, WingedEdgeMesh};
+    for name in [
+        "sphere.ply",
+        "mesh_with_border.off",
+        "elephant-with-holes.off",
+        "double-torus-example.off",
+        "cube_quad.off",
+    ] {
+        let (h, _) = build(&data(name));
+        let w = WingedEdgeMesh::from_half_edge(&h);
+        let c = CompactMesh::from_half_edge(&h);
+        assert_eq!(c.is_some(), h.is_triangle_mesh(), "{name}");
+        for v in h.vertices() {
+            let ring: Vec<u32> = h.vertex_vertices(v).map(|x| x.0).collect();
+            let wring: Vec<u32> = w.vertices_of_vertex(v).map(|x| x.0).collect();
+            assert_eq!(ring, wring, "{name}: winged-edge ring of {}", v.0);
+            if let Some(c) = &c {
+                let cring: Vec<u32> = c.vertex_vertices(v).map(|x| x.0).collect();
+                assert!(
+                    same_cycle(&ring, &cring),
+                    "{name}: compact ring of {}: {ring:?} vs {cring:?}",
+                    v.0
+                );
+            }
+        }
+        for f in h.faces() {
+            let fv: Vec<u32> = h.face_vertices(f).map(|x| x.0).collect();
+            let wv: Vec<u32> = w.vertices_of_face(f).map(|x| x.0).collect();
+            assert!(same_cycle(&fv, &wv), "{name}: face {}", f.0);
+            assert_eq!(h.face_faces(f).count(), w.faces_of_face(f).count());
+        }
+        let per_vertex = |bytes: usize| bytes as f64 / h.num_vertices() as f64;
+        assert!(per_vertex(w.memory_bytes()) > per_vertex(h.memory_bytes()));
+        if let Some(c) = &c {
+            assert!(per_vertex(c.memory_bytes()) < per_vertex(h.memory_bytes()));
+        }
+    }
+}
