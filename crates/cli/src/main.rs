@@ -24,6 +24,10 @@ enum Command {
     Raycast(cmd::raycast::Args),
     /// Write one of BENCH.md's ray workloads for a mesh as a .npy file.
     Rays(cmd::rays::Args),
+    /// Connectivity of a mesh (half-edge, winged-edge, compact): topology, repairs, memory, timings.
+    Mesh(cmd::mesh::Args),
+    /// Subdivide a mesh (Loop or Catmull–Clark) and write the result.
+    Subdivide(cmd::subdivide::Args),
     /// Ray-trace a scene file, a mesh, or (with no argument) the built-in demo to PNG.
     Render(cmd::render::Args),
 }
@@ -35,6 +39,8 @@ fn main() -> ExitCode {
         Command::Raycast(a) => cmd::raycast::run(&a),
         Command::Rays(a) => cmd::rays::run(&a),
         Command::Render(a) => cmd::render::run(&a),
+        Command::Mesh(a) => cmd::mesh::run(&a),
+        Command::Subdivide(a) => cmd::subdivide::run(&a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,9 +1,11 @@
 //! One module per subcommand.
 
 pub mod info;
+pub mod mesh;
 pub mod raycast;
 pub mod rays;
 pub mod render;
+pub mod subdivide;
 
 /// A rayon pool of `threads` workers (all cores when `None`).
 pub fn thread_pool(threads: Option<usize>) -> anyhow::Result<rayon::ThreadPool> {

@@ -46,13 +46,44 @@ impl RepairReport {
     }
 }
 
-/// Disjoint sets over half-edges (union by index, path halving).
-fn find(parent: &mut [u32], mut x: u32) -> u32 {
-    while parent[x as usize] != x {
-        parent[x as usize] = parent[parent[x as usize] as usize];
-        x = parent[x as usize];
+/// Faces with the same vertex set as an earlier face. Faces are bucketed
+/// by their lowest vertex, so only faces sharing it are compared.
+fn repeated_faces(mesh: &IndexedMesh) -> Vec<u32> {
+    let nv = mesh.num_vertices();
+    let mut start = vec![0u32; nv + 1];
+    for f in mesh.faces() {
+        start[*f.iter().min().unwrap() as usize + 1] += 1;
     }
-    x
+    for i in 0..nv {
+        start[i + 1] += start[i];
+    }
+    let mut fill = start.clone();
+    let mut bucket = vec![0u32; mesh.num_faces()];
+    for (i, f) in mesh.faces().enumerate() {
+        let m = *f.iter().min().unwrap() as usize;
+        bucket[fill[m] as usize] = i as u32;
+        fill[m] += 1;
+    }
+    let sorted = |f: usize| {
+        let mut k = mesh.face(f).to_vec();
+        k.sort_unstable();
+        k
+    };
+    let mut out = Vec::new();
+    for v in 0..nv {
+        let b = &bucket[start[v] as usize..start[v + 1] as usize];
+        if b.len() < 2 {
+            continue;
+        }
+        let keys: Vec<Vec<u32>> = b.iter().map(|&f| sorted(f as usize)).collect();
+        for j in 1..b.len() {
+            if (0..j).any(|i| keys[i] == keys[j]) {
+                out.push(b[j]);
+            }
+        }
+    }
+    out.sort_unstable();
+    out
 }
 
 fn list(faces: &[u32]) -> String {
@@ -85,7 +116,6 @@ impl HalfEdgeMesh {
         let nf = mesh.num_faces();
         let mut corner_v: Vec<u32> = Vec::with_capacity(mesh.indices().len());
         let mut face_start: Vec<u32> = Vec::with_capacity(nf + 1);
-        let mut seen: std::collections::HashMap<Vec<u32>, u32> = std::collections::HashMap::new();
         for (f, face) in mesh.faces().enumerate() {
             face_start.push(corner_v.len() as u32);
             let start = corner_v.len();
@@ -102,13 +132,9 @@ impl HalfEdgeMesh {
                     corner_v.push(v);
                 }
             }
-            let mut key = face.to_vec();
-            key.sort_unstable();
-            if let Some(_first) = seen.insert(key, f as u32) {
-                report.repeated_faces.push(f as u32);
-            }
         }
         face_start.push(corner_v.len() as u32);
+        report.repeated_faces = repeated_faces(mesh);
         let nc = corner_v.len();
         let nv = positions.len();
         let mut corner_face = vec![0u32; nc];
@@ -120,7 +146,8 @@ impl HalfEdgeMesh {
                 corner_next[c] = if c + 1 == e { s as u32 } else { c as u32 + 1 };
             }
         }
-        let head = |c: usize| corner_v[corner_next[c] as usize];
+        let corner_to: Vec<u32> = (0..nc).map(|c| corner_v[corner_next[c] as usize]).collect();
+        let head = |c: usize| corner_to[c];
         // Outgoing corners of each vertex (CSR).
         let mut out_start = vec![0u32; nv + 1];
         for &v in &corner_v {
@@ -148,29 +175,35 @@ impl HalfEdgeMesh {
             let (a, b) = (corner_v[c], head(c));
             let same = outgoing(a)
                 .iter()
-                .filter(|&&d| head(d as usize) == b)
+                .filter(|&&d| corner_to[d as usize] == b)
                 .count();
-            let opposite = outgoing(b)
-                .iter()
-                .copied()
-                .filter(|&d| head(d as usize) == a);
-            let first = outgoing(a)
-                .iter()
-                .filter(|&&d| head(d as usize) == b)
-                .chain(outgoing(b).iter().filter(|&&d| head(d as usize) == a))
-                .all(|&d| d as usize >= c);
-            let total = same + opposite.clone().count();
-            if total > 2 {
-                report.non_manifold_edges += first as usize;
-                bad_face[corner_face[c] as usize] = true;
-            } else if same > 1 {
-                report.inconsistent_edges += first as usize;
+            let (mut opposite, mut free) = (0usize, NONE);
+            for &d in outgoing(b) {
+                if corner_to[d as usize] == a {
+                    opposite += 1;
+                    if free == NONE && pair[d as usize] == NONE {
+                        free = d;
+                    }
+                }
+            }
+            let total = same + opposite;
+            if total > 2 || same > 1 {
+                let first = outgoing(a)
+                    .iter()
+                    .filter(|&&d| corner_to[d as usize] == b)
+                    .chain(outgoing(b).iter().filter(|&&d| corner_to[d as usize] == a))
+                    .all(|&d| d as usize >= c);
+                if total > 2 {
+                    report.non_manifold_edges += first as usize;
+                } else {
+                    report.inconsistent_edges += first as usize;
+                }
                 bad_face[corner_face[c] as usize] = true;
             }
             if pair[c] == NONE {
-                if let Some(d) = opposite.clone().find(|&d| pair[d as usize] == NONE) {
-                    pair[c] = d;
-                    pair[d as usize] = c as u32;
+                if free != NONE {
+                    pair[c] = free;
+                    pair[free as usize] = c as u32;
                 } else if total > 1 {
                     cut += 1;
                 }
@@ -209,42 +242,62 @@ impl HalfEdgeMesh {
         }
         m.f_half = (0..nf).map(|f| corner_he[face_start[f] as usize]).collect();
 
-        // Fans: outgoing face half-edges h ~ twin(prev(h)) when that has a face.
-        let nh = m.h_to.len();
-        let mut parent: Vec<u32> = (0..nh as u32).collect();
-        for c in 0..nc {
-            let h = corner_he[c];
-            let t = m.prev_halfedge(h).twin();
-            if !m.is_boundary_halfedge(t) {
-                let (x, y) = (find(&mut parent, h.0), find(&mut parent, t.0));
-                if x != y {
-                    parent[x.max(y) as usize] = x.min(y);
-                }
+        // Fans. Around a vertex, corner c turns counter-clockwise to the
+        // partner of the corner before it, clockwise to the corner after its
+        // partner. A vertex is manifold when one fan reaches all its corners.
+        let corner_prev = |c: usize| {
+            let f = corner_face[c] as usize;
+            if c == face_start[f] as usize {
+                face_start[f + 1] as usize - 1
+            } else {
+                c - 1
             }
-        }
+        };
+        let ccw = |c: usize| {
+            let p = pair[corner_prev(c)];
+            (p != NONE).then_some(p as usize)
+        };
+        let cw = |c: usize| {
+            let p = pair[c];
+            (p != NONE).then(|| corner_next[p as usize] as usize)
+        };
+        let mut fan_of = vec![u32::MAX; nc];
         for v in 0..nv as u32 {
-            let mut fans: Vec<u32> = Vec::new();
-            for &c in outgoing(v) {
-                let r = find(&mut parent, corner_he[c as usize].0);
-                if !fans.contains(&r) {
-                    fans.push(r);
+            let outs = outgoing(v);
+            let mut fans = 0u32;
+            for &c0 in outs {
+                if fan_of[c0 as usize] != u32::MAX {
+                    continue;
                 }
+                fan_of[c0 as usize] = fans;
+                for clockwise in [false, true] {
+                    let mut c = c0 as usize;
+                    while let Some(n) = if clockwise { cw(c) } else { ccw(c) } {
+                        if fan_of[n] != u32::MAX {
+                            break;
+                        }
+                        fan_of[n] = fans;
+                        c = n;
+                    }
+                }
+                fans += 1;
             }
-            if fans.len() <= 1 {
+            if fans <= 1 {
                 continue;
             }
             report.non_manifold_vertices += 1;
-            for &fan in &fans[1..] {
+            for &c in outs {
+                bad_face[corner_face[c as usize] as usize] = true;
+            }
+            for fan in 1..fans {
                 let nv2 = Vertex::new(m.positions.len());
                 m.positions.push(m.positions[v as usize]);
                 report.added_vertices += 1;
-                for &c in outgoing(v) {
-                    let h = corner_he[c as usize];
-                    if find(&mut parent, h.0) == fan {
+                for &c in outs {
+                    if fan_of[c as usize] == fan {
+                        let h = corner_he[c as usize];
                         m.h_to[h.twin().idx()] = nv2;
-                        let p = m.prev_halfedge(h);
-                        m.h_to[p.idx()] = nv2;
-                        bad_face[corner_face[c as usize] as usize] = true;
+                        m.h_to[corner_he[corner_prev(c as usize)].idx()] = nv2;
                     }
                 }
             }
@@ -252,6 +305,7 @@ impl HalfEdgeMesh {
 
         // Boundary loops, and each vertex's half-edge (its boundary one if any).
         let nv = m.positions.len();
+        let nh = m.h_to.len();
         m.v_half = vec![HalfEdge::INVALID; nv];
         let mut boundary_out = vec![HalfEdge::INVALID; nv];
         for h in 0..nh {

@@ -87,6 +87,23 @@ impl HalfEdgeMesh {
         self.outgoing_halfedges(v).map(|h| self.to_vertex(h))
     }
 
+    /// Neighbouring vertices of `v`, clockwise: one load per step, where
+    /// counter-clockwise needs the previous half-edge. Boundary vertices
+    /// turn fully too (boundary loops are linked), starting at the boundary.
+    pub fn vertex_vertices_cw(&self, v: Vertex) -> impl Iterator<Item = Vertex> + '_ {
+        let start = self.vertex_halfedge(v);
+        let mut cur = start;
+        std::iter::from_fn(move || {
+            if !cur.is_valid() {
+                return None;
+            }
+            let h = cur;
+            let n = self.cw_rotated(h);
+            cur = if n == start { HalfEdge::INVALID } else { n };
+            Some(self.to_vertex(h))
+        })
+    }
+
     /// Faces around `v`, counter-clockwise.
     pub fn vertex_faces(&self, v: Vertex) -> impl Iterator<Item = Face> + '_ {
         self.outgoing_halfedges(v)
