@@ -10,6 +10,7 @@
 //! about 96 bytes per vertex on a triangle mesh (the lecture counts 120).
 
 mod build;
+mod edit;
 mod query;
 mod subdivide;
 mod validate;
@@ -33,6 +34,9 @@ pub struct HalfEdgeMesh {
     pub(crate) h_face: Vec<Face>,
     /// One half-edge of each face.
     pub(crate) f_half: Vec<HalfEdge>,
+    /// Deleted elements since the last garbage collection; allocated only
+    /// once an edit deletes something.
+    pub(crate) garbage: Option<Box<edit::Garbage>>,
 }
 
 impl HalfEdgeMesh {
@@ -178,6 +182,7 @@ impl HalfEdgeMesh {
             + self.v_half.len() * 4
             + self.h_to.len() * 12
             + self.f_half.len() * 4
+            + self.garbage.as_ref().map_or(0, |g| g.bytes())
     }
 
     /// Vertices, in order.

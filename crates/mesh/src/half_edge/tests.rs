@@ -262,3 +262,108 @@ fn winged_edge_and_compact_agree_with_half_edge() {
         }
     }
 }
+
+#[derive(Clone, Debug)]
+enum Op {
+    Flip(usize),
+    Split(usize, f32),
+    Collapse(usize),
+    Collect,
+}
+
+fn op() -> impl Strategy<Value = Op> {
+    prop_oneof![
+        3 => any::<usize>().prop_map(Op::Flip),
+        2 => (any::<usize>(), 0.1f32..0.9).prop_map(|(e, t)| Op::Split(e, t)),
+        3 => any::<usize>().prop_map(Op::Collapse),
+        1 => Just(Op::Collect),
+    ]
+}
+
+/// Applies one edit; returns whether it changed the mesh.
+fn apply(m: &mut HalfEdgeMesh, op: &Op) -> bool {
+    match *op {
+        Op::Flip(e) => m.flip(Edge::new(e % m.num_edges())),
+        Op::Split(e, t) => {
+            let e = Edge::new(e % m.num_edges());
+            if m.is_deleted_edge(e) {
+                return false;
+            }
+            let (a, b) = (
+                m.position(m.to_vertex(e.halfedge(0))),
+                m.position(m.to_vertex(e.halfedge(1))),
+            );
+            m.split(e, a.lerp(b, t)).is_some()
+        }
+        Op::Collapse(h) => m.collapse(HalfEdge::new(h % m.num_halfedges())),
+        Op::Collect => {
+            m.garbage_collect();
+            true
+        }
+    }
+}
+
+/// Cases of the edit property test; raise with `RAYMESH_PROPTEST_CASES`.
+fn edit_cases() -> u32 {
+    std::env::var("RAYMESH_PROPTEST_CASES")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(200)
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: edit_cases(), failure_persistence: None, ..ProptestConfig::default() })]
+
+    /// Random flips, splits and collapses on real meshes, closed and open:
+    /// the mesh validates after every step, and its Euler characteristic
+    /// and boundary never change (each edit is a local, topology-keeping move).
+    #[test]
+    fn random_edits_keep_the_mesh_valid(mesh in 0usize..3, ops in proptest::collection::vec(op(), 1..60)) {
+        let name = ["sphere.ply", "mesh_with_border.off", "tetrahedron.off"][mesh];
+        let (mut m, _) = build(&data(name));
+        let chi = m.euler_characteristic();
+        let loops = m.boundary_loops().len();
+        for (i, o) in ops.iter().enumerate() {
+            apply(&mut m, o);
+            prop_assert!(m.validate().is_ok(), "{name}: step {i} {o:?}: {:?}", m.validate());
+            let mut g = m.clone();
+            g.garbage_collect();
+            prop_assert_eq!(g.euler_characteristic(), chi, "{} after step {} {:?}", name, i, o);
+            prop_assert_eq!(g.boundary_loops().len(), loops);
+        }
+    }
+}
+
+#[test]
+fn flip_split_collapse_by_hand() {
+    // Two triangles forming a square: flip the diagonal, then split it, then collapse it back.
+    let p = vec![Vec3::ZERO, Vec3::X, Vec3::new(1.0, 1.0, 0.0), Vec3::Y];
+    let (mut m, _) = build(&IndexedMesh::from_triangles(p, &[[0, 1, 2], [0, 2, 3]]).unwrap());
+    let diag = m.edges().find(|&e| !m.is_boundary_edge(e)).unwrap();
+    assert!(m.flip(diag));
+    m.validate().unwrap();
+    let ends = [
+        m.to_vertex(diag.halfedge(0)).0,
+        m.to_vertex(diag.halfedge(1)).0,
+    ];
+    assert!(ends.contains(&1) && ends.contains(&3), "{ends:?}");
+    let v = m.split(diag, Vec3::new(0.5, 0.5, 0.0)).unwrap();
+    m.validate().unwrap();
+    assert_eq!((m.num_vertices(), m.num_faces(), m.valence(v)), (5, 4, 4));
+    // The centre joins two boundary vertices by interior edges only: collapsing
+    // it onto a corner would join two boundaries through the interior.
+    let out: Vec<HalfEdge> = m.outgoing_halfedges(v).collect();
+    assert!(out.iter().all(|&h| !m.is_boundary_halfedge(h)));
+    let collapsed = out.iter().any(|&h| m.collapse(h));
+    assert!(collapsed);
+    m.validate().unwrap();
+    m.garbage_collect();
+    m.validate().unwrap();
+    assert_eq!((m.num_vertices(), m.num_faces()), (4, 2));
+    // A boundary edge of a single triangle cannot be flipped or collapsed.
+    let (mut t, _) = build(
+        &IndexedMesh::from_triangles(vec![Vec3::ZERO, Vec3::X, Vec3::Y], &[[0, 1, 2]]).unwrap(),
+    );
+    assert!(!t.flip(Edge(0)));
+    assert!(!t.collapse(HalfEdge(0)));
+}

@@ -4,8 +4,17 @@ use super::HalfEdgeMesh;
 use crate::handle::{Face, HalfEdge, Vertex};
 
 impl HalfEdgeMesh {
-    /// Checks every invariant; the error says which one failed where.
+    /// Checks every invariant; the error says which one failed where. With
+    /// deleted elements pending, checks the mesh they would leave: every
+    /// live element must refer only to live ones.
     pub fn validate(&self) -> Result<(), String> {
+        if self.has_garbage() {
+            let mut m = self.clone();
+            m.garbage_collect();
+            return m
+                .validate()
+                .map_err(|e| format!("after dropping deleted elements: {e}"));
+        }
         let (nv, nh, nf) = (self.num_vertices(), self.num_halfedges(), self.num_faces());
         if self.v_half.len() != nv
             || self.h_next.len() != nh

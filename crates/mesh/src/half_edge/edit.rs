@@ -1,0 +1,406 @@
+//! Editing triangle meshes: edge flip, edge split, half-edge collapse (with
+//! the link condition of Dey et al. 1999 / Hoppe et al. 1993), and garbage
+//! collection of what collapses delete.
+
+use super::HalfEdgeMesh;
+use crate::handle::{Edge, Face, HalfEdge, Vertex};
+use raymesh_geometry::Vec3;
+
+/// Elements deleted since the last [`HalfEdgeMesh::garbage_collect`].
+#[derive(Clone, Debug, Default, PartialEq)]
+pub(crate) struct Garbage {
+    vertices: Vec<bool>,
+    edges: Vec<bool>,
+    faces: Vec<bool>,
+}
+
+impl Garbage {
+    pub(crate) fn bytes(&self) -> usize {
+        self.vertices.len() + self.edges.len() + self.faces.len()
+    }
+}
+
+fn mark(v: &mut Vec<bool>, i: usize, len: usize) {
+    if v.len() < len {
+        v.resize(len, false);
+    }
+    v[i] = true;
+}
+
+impl HalfEdgeMesh {
+    /// Whether a vertex was deleted by an edit (until garbage collection).
+    #[must_use]
+    pub fn is_deleted_vertex(&self, v: Vertex) -> bool {
+        self.garbage
+            .as_ref()
+            .is_some_and(|g| g.vertices.get(v.idx()).copied().unwrap_or(false))
+    }
+
+    /// Whether an edge was deleted by an edit.
+    #[must_use]
+    pub fn is_deleted_edge(&self, e: Edge) -> bool {
+        self.garbage
+            .as_ref()
+            .is_some_and(|g| g.edges.get(e.idx()).copied().unwrap_or(false))
+    }
+
+    /// Whether a face was deleted by an edit.
+    #[must_use]
+    pub fn is_deleted_face(&self, f: Face) -> bool {
+        self.garbage
+            .as_ref()
+            .is_some_and(|g| g.faces.get(f.idx()).copied().unwrap_or(false))
+    }
+
+    /// Whether edits left deleted elements behind.
+    #[must_use]
+    pub fn has_garbage(&self) -> bool {
+        self.garbage.is_some()
+    }
+
+    fn garbage_mut(&mut self) -> &mut Garbage {
+        self.garbage.get_or_insert_with(Default::default)
+    }
+
+    fn delete_vertex(&mut self, v: Vertex) {
+        let n = self.num_vertices();
+        mark(&mut self.garbage_mut().vertices, v.idx(), n);
+    }
+
+    fn delete_edge(&mut self, e: Edge) {
+        let n = self.num_edges();
+        mark(&mut self.garbage_mut().edges, e.idx(), n);
+    }
+
+    fn delete_face(&mut self, f: Face) {
+        let n = self.num_faces();
+        mark(&mut self.garbage_mut().faces, f.idx(), n);
+    }
+
+    fn is_triangle(&self, f: Face) -> bool {
+        let h = self.face_halfedge(f);
+        self.next_halfedge(self.next_halfedge(self.next_halfedge(h))) == h
+    }
+
+    /// Whether the faces on both sides of `e` are triangles (or none).
+    fn triangles_around(&self, e: Edge) -> bool {
+        [e.halfedge(0), e.halfedge(1)]
+            .into_iter()
+            .all(|h| self.is_boundary_halfedge(h) || self.is_triangle(self.face(h)))
+    }
+
+    /// Points a vertex at its boundary half-edge if it has one (after edits).
+    fn adjust_outgoing(&mut self, v: Vertex) {
+        let start = self.vertex_halfedge(v);
+        if !start.is_valid() {
+            return;
+        }
+        let mut h = start;
+        loop {
+            if self.is_boundary_halfedge(h) {
+                self.v_half[v.idx()] = h;
+                return;
+            }
+            h = self.cw_rotated(h);
+            if h == start {
+                return;
+            }
+        }
+    }
+
+    /// Whether [`Self::flip`] may turn `e`: an interior edge between two
+    /// triangles whose far vertices are not already joined.
+    #[must_use]
+    pub fn is_flip_ok(&self, e: Edge) -> bool {
+        if self.is_deleted_edge(e) || self.is_boundary_edge(e) || !self.triangles_around(e) {
+            return false;
+        }
+        let (h0, h1) = (e.halfedge(0), e.halfedge(1));
+        let (a, b) = (
+            self.to_vertex(self.next_halfedge(h0)),
+            self.to_vertex(self.next_halfedge(h1)),
+        );
+        a != b && !self.vertex_vertices(a).any(|w| w == b)
+    }
+
+    /// Turns edge `e` inside its two triangles, to join their far vertices.
+    /// Returns false (and changes nothing) when [`Self::is_flip_ok`] is false.
+    pub fn flip(&mut self, e: Edge) -> bool {
+        if !self.is_flip_ok(e) {
+            return false;
+        }
+        let (h0, h1) = (e.halfedge(0), e.halfedge(1));
+        let (a0, a1) = (self.next_halfedge(h0), self.next_halfedge(h1));
+        let (b0, b1) = (self.next_halfedge(a0), self.next_halfedge(a1));
+        let (va0, vb0) = (self.to_vertex(h0), self.to_vertex(h1));
+        let (va1, vb1) = (self.to_vertex(a0), self.to_vertex(a1));
+        let (f0, f1) = (self.face(h0), self.face(h1));
+        self.h_to[h0.idx()] = va1;
+        self.h_to[h1.idx()] = vb1;
+        // Face f0: h0 (vb1→va1), b0 (va1→vb0), a1 (vb0→vb1). Face f1: h1, b1, a0.
+        self.h_next[h0.idx()] = b0;
+        self.h_next[b0.idx()] = a1;
+        self.h_next[a1.idx()] = h0;
+        self.h_next[h1.idx()] = b1;
+        self.h_next[b1.idx()] = a0;
+        self.h_next[a0.idx()] = h1;
+        self.h_face[a1.idx()] = f0;
+        self.h_face[a0.idx()] = f1;
+        self.f_half[f0.idx()] = h0;
+        self.f_half[f1.idx()] = h1;
+        if self.v_half[va0.idx()] == h1 {
+            self.v_half[va0.idx()] = a0;
+        }
+        if self.v_half[vb0.idx()] == h0 {
+            self.v_half[vb0.idx()] = a1;
+        }
+        true
+    }
+
+    fn new_edge(&mut self, from: Vertex, to: Vertex) -> HalfEdge {
+        let h = HalfEdge::new(self.h_to.len());
+        self.h_to.extend([to, from]);
+        self.h_next.extend([HalfEdge::INVALID; 2]);
+        self.h_face.extend([Face::INVALID; 2]);
+        h
+    }
+
+    fn new_face(&mut self, h: HalfEdge) -> Face {
+        self.f_half.push(h);
+        Face::new(self.f_half.len() - 1)
+    }
+
+    /// Splits edge `e` at a new vertex at `p`, and each triangle beside it
+    /// in two. `None` (and no change) if a face beside `e` is not a triangle.
+    pub fn split(&mut self, e: Edge, p: Vec3) -> Option<Vertex> {
+        if self.is_deleted_edge(e) || !self.triangles_around(e) {
+            return None;
+        }
+        let (h0, h1) = (e.halfedge(0), e.halfedge(1));
+        let v1 = self.to_vertex(h0);
+        let (f0, f1) = (self.face(h0), self.face(h1));
+        let prev_h1 = self.prev_halfedge(h1);
+        let next_h0 = self.next_halfedge(h0);
+        let v = Vertex::new(self.positions.len());
+        self.positions.push(p);
+        self.v_half.push(HalfEdge::INVALID);
+        // h0: v0→v, g: v→v1 (its twin v1→v), h1 becomes v→v0.
+        self.h_to[h0.idx()] = v;
+        let g = self.new_edge(v, v1);
+        let gt = g.twin();
+        if f0.is_valid() {
+            let (x, y) = (next_h0, self.next_halfedge(next_h0));
+            let w = self.to_vertex(x);
+            let n = self.new_edge(v, w);
+            let f2 = self.new_face(h0);
+            self.set_triangle([g, x, n.twin()], f0);
+            self.set_triangle([h0, n, y], f2);
+        } else {
+            self.h_next[h0.idx()] = g;
+            self.h_next[g.idx()] = next_h0;
+        }
+        if f1.is_valid() {
+            let (z, q) = (
+                self.next_halfedge(h1),
+                self.next_halfedge(self.next_halfedge(h1)),
+            );
+            let u = self.to_vertex(z);
+            let m = self.new_edge(v, u);
+            let f4 = self.new_face(gt);
+            self.set_triangle([h1, z, m.twin()], f1);
+            self.set_triangle([gt, m, q], f4);
+        } else {
+            self.h_next[prev_h1.idx()] = gt;
+            self.h_next[gt.idx()] = h1;
+        }
+        self.v_half[v.idx()] = if !f1.is_valid() { h1 } else { g };
+        if self.v_half[v1.idx()] == h1 {
+            self.v_half[v1.idx()] = gt;
+        }
+        if let Some(gb) = self.garbage.as_mut() {
+            // Keep the marks' lengths in step with the arrays.
+            gb.vertices.resize(self.positions.len(), false);
+        }
+        Some(v)
+    }
+
+    fn set_triangle(&mut self, hs: [HalfEdge; 3], f: Face) {
+        for i in 0..3 {
+            self.h_next[hs[i].idx()] = hs[(i + 1) % 3];
+            self.h_face[hs[i].idx()] = f;
+        }
+        self.f_half[f.idx()] = hs[0];
+    }
+
+    /// Whether [`Self::collapse`] may merge the start of `h` into its end:
+    /// the faces beside it are triangles, no triangle would be left hanging,
+    /// an interior edge does not join two boundaries, and the one-rings of
+    /// the two vertices share only the vertices opposite the edge (the link
+    /// condition), and no second edge joins them, so the result stays a
+    /// manifold without loops.
+    #[must_use]
+    pub fn is_collapse_ok(&self, h: HalfEdge) -> bool {
+        let e = h.edge();
+        if self.is_deleted_edge(e) || !self.triangles_around(e) {
+            return false;
+        }
+        let o = h.twin();
+        let (v0, v1) = (self.from_vertex(h), self.to_vertex(h));
+        let side = |h: HalfEdge| -> Result<Option<Vertex>, ()> {
+            if self.is_boundary_halfedge(h) {
+                return Ok(None);
+            }
+            let h1 = self.next_halfedge(h);
+            let h2 = self.next_halfedge(h1);
+            if self.is_boundary_halfedge(h1.twin()) && self.is_boundary_halfedge(h2.twin()) {
+                return Err(());
+            }
+            Ok(Some(self.to_vertex(h1)))
+        };
+        let (Ok(vl), Ok(vr)) = (side(h), side(o)) else {
+            return false;
+        };
+        if vl.is_some() && vl == vr {
+            return false;
+        }
+        if self.is_boundary_vertex(v0) && self.is_boundary_vertex(v1) && !self.is_boundary_edge(e) {
+            return false;
+        }
+        // Another edge joining v0 and v1 would become a loop.
+        if self.vertex_vertices(v0).filter(|&w| w == v1).count() > 1 {
+            return false;
+        }
+        let ring1: Vec<Vertex> = self.vertex_vertices(v1).collect();
+        !self
+            .vertex_vertices(v0)
+            .any(|w| w != v1 && Some(w) != vl && Some(w) != vr && ring1.contains(&w))
+    }
+
+    /// Merges the start vertex of `h` into its end, removing the edge and
+    /// the triangles beside it. Returns false (and changes nothing) when
+    /// [`Self::is_collapse_ok`] is false. Deleted elements stay until
+    /// [`Self::garbage_collect`].
+    pub fn collapse(&mut self, h: HalfEdge) -> bool {
+        if !self.is_collapse_ok(h) {
+            return false;
+        }
+        let o = h.twin();
+        let (v0, v1) = (self.from_vertex(h), self.to_vertex(h));
+        let (hn, hp) = (self.next_halfedge(h), self.prev_halfedge(h));
+        let (on, op) = (self.next_halfedge(o), self.prev_halfedge(o));
+        let (fh, fo) = (self.face(h), self.face(o));
+        // What the loops' removal needs, read before anything changes.
+        let loop_h = fh
+            .is_valid()
+            .then(|| (hn, hp, self.prev_halfedge(hn.twin())));
+        let loop_o = fo
+            .is_valid()
+            .then(|| (on, op, self.prev_halfedge(on.twin())));
+        let vl = fh.is_valid().then(|| self.to_vertex(hn));
+        let vr = fo.is_valid().then(|| self.to_vertex(on));
+        let incoming: Vec<HalfEdge> = self.outgoing_halfedges(v0).map(HalfEdge::twin).collect();
+        for i in incoming {
+            self.h_to[i.idx()] = v1;
+        }
+        self.h_next[hp.idx()] = hn;
+        self.h_next[op.idx()] = on;
+        if fh.is_valid() {
+            self.f_half[fh.idx()] = hn;
+        }
+        if fo.is_valid() {
+            self.f_half[fo.idx()] = on;
+        }
+        if self.v_half[v1.idx()] == o {
+            self.v_half[v1.idx()] = on;
+        }
+        self.v_half[v0.idx()] = HalfEdge::INVALID;
+        self.delete_vertex(v0);
+        self.delete_edge(h.edge());
+        for (a, b, prev_ta) in [loop_h, loop_o].into_iter().flatten() {
+            self.remove_loop(a, b, prev_ta, v1);
+        }
+        for v in [Some(v1), vl, vr].into_iter().flatten() {
+            self.adjust_outgoing(v);
+        }
+        true
+    }
+
+    /// Removes the two-sided face `[a, b]` (a: v1→x, b: x→v1) left by a
+    /// collapse: `b` takes the place of `twin(a)`, whose previous half-edge
+    /// was `prev_ta`.
+    fn remove_loop(&mut self, a: HalfEdge, b: HalfEdge, prev_ta: HalfEdge, v1: Vertex) {
+        let ta = a.twin();
+        let x = self.to_vertex(a);
+        let (f, g) = (self.face(a), self.face(ta));
+        self.h_next[prev_ta.idx()] = b;
+        self.h_next[b.idx()] = self.next_halfedge(ta);
+        self.h_face[b.idx()] = g;
+        if g.is_valid() && self.f_half[g.idx()] == ta {
+            self.f_half[g.idx()] = b;
+        }
+        if self.v_half[x.idx()] == ta {
+            self.v_half[x.idx()] = b;
+        }
+        if self.v_half[v1.idx()] == a {
+            self.v_half[v1.idx()] = b.twin();
+        }
+        self.delete_face(f);
+        self.delete_edge(a.edge());
+    }
+
+    /// Drops deleted elements, renumbering the rest in order.
+    pub fn garbage_collect(&mut self) {
+        let Some(g) = self.garbage.take() else { return };
+        let keep = |marks: &Vec<bool>, n: usize| -> Vec<u32> {
+            let mut next = 0u32;
+            (0..n)
+                .map(|i| {
+                    if marks.get(i).copied().unwrap_or(false) {
+                        u32::MAX
+                    } else {
+                        next += 1;
+                        next - 1
+                    }
+                })
+                .collect()
+        };
+        let vmap = keep(&g.vertices, self.num_vertices());
+        let emap = keep(&g.edges, self.num_edges());
+        let fmap = keep(&g.faces, self.num_faces());
+        let hmap = |h: HalfEdge| {
+            if h.is_valid() && emap[h.idx() >> 1] != u32::MAX {
+                HalfEdge((emap[h.idx() >> 1] << 1) | (h.0 & 1))
+            } else {
+                HalfEdge::INVALID
+            }
+        };
+        let vm = |v: Vertex| {
+            if v.is_valid() {
+                Vertex(vmap[v.idx()])
+            } else {
+                v
+            }
+        };
+        let fm = |f: Face| if f.is_valid() { Face(fmap[f.idx()]) } else { f };
+        let mut m = HalfEdgeMesh::default();
+        for v in 0..self.num_vertices() {
+            if vmap[v] != u32::MAX {
+                m.positions.push(self.positions[v]);
+                m.v_half.push(hmap(self.v_half[v]));
+            }
+        }
+        for h in 0..self.num_halfedges() {
+            if emap[h >> 1] != u32::MAX {
+                m.h_to.push(vm(self.h_to[h]));
+                m.h_next.push(hmap(self.h_next[h]));
+                m.h_face.push(fm(self.h_face[h]));
+            }
+        }
+        for f in 0..self.num_faces() {
+            if fmap[f] != u32::MAX {
+                m.f_half.push(hmap(self.f_half[f]));
+            }
+        }
+        *self = m;
+    }
+}
