@@ -151,6 +151,21 @@ impl CompactMesh {
         self.positions[v.idx()]
     }
 
+    /// The indexed triangle mesh with the same vertices and faces.
+    #[must_use]
+    pub fn to_indexed(&self) -> crate::IndexedMesh {
+        let mut out = crate::IndexedMesh::with_capacity(
+            self.positions.len(),
+            self.num_faces(),
+            self.corner_vertex.len(),
+        );
+        out.positions = self.positions.clone();
+        for t in self.corner_vertex.chunks_exact(3) {
+            out.push_face_unchecked(&[t[0].0, t[1].0, t[2].0]);
+        }
+        out
+    }
+
     /// Bytes of the structure's arrays (positions included).
     #[must_use]
     pub fn memory_bytes(&self) -> usize {

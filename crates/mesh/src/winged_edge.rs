@@ -169,6 +169,24 @@ impl WingedEdgeMesh {
             .filter(|g| g.is_valid())
     }
 
+    /// The indexed polygon mesh with the same vertices and faces.
+    #[must_use]
+    pub fn to_indexed(&self) -> crate::IndexedMesh {
+        let mut out = crate::IndexedMesh::with_capacity(
+            self.positions.len(),
+            self.f_edge.len(),
+            2 * self.edges.len(),
+        );
+        out.positions = self.positions.clone();
+        let mut face = Vec::new();
+        for f in 0..self.f_edge.len() {
+            face.clear();
+            face.extend(self.vertices_of_face(Face::new(f)).map(|v| v.0));
+            out.push_face_unchecked(&face);
+        }
+        out
+    }
+
     /// Bytes of the structure's arrays (positions included).
     #[must_use]
     pub fn memory_bytes(&self) -> usize {

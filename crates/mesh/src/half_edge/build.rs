@@ -64,20 +64,29 @@ fn repeated_faces(mesh: &IndexedMesh) -> Vec<u32> {
         bucket[fill[m] as usize] = i as u32;
         fill[m] += 1;
     }
-    let sorted = |f: usize| {
-        let mut k = mesh.face(f).to_vec();
-        k.sort_unstable();
-        k
+    // Same vertex set: same size and, sorted, the same vertices. Triangles
+    // (the common case) compare as arrays, without allocating.
+    let same = |f: u32, g: u32| {
+        let (a, b) = (mesh.face(f as usize), mesh.face(g as usize));
+        if a.len() != b.len() {
+            return false;
+        }
+        if a.len() == 3 {
+            let (mut x, mut y) = ([a[0], a[1], a[2]], [b[0], b[1], b[2]]);
+            x.sort_unstable();
+            y.sort_unstable();
+            return x == y;
+        }
+        let (mut x, mut y) = (a.to_vec(), b.to_vec());
+        x.sort_unstable();
+        y.sort_unstable();
+        x == y
     };
     let mut out = Vec::new();
     for v in 0..nv {
         let b = &bucket[start[v] as usize..start[v + 1] as usize];
-        if b.len() < 2 {
-            continue;
-        }
-        let keys: Vec<Vec<u32>> = b.iter().map(|&f| sorted(f as usize)).collect();
         for j in 1..b.len() {
-            if (0..j).any(|i| keys[i] == keys[j]) {
+            if (0..j).any(|i| same(b[i], b[j])) {
                 out.push(b[j]);
             }
         }

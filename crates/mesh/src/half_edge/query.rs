@@ -231,16 +231,35 @@ impl HalfEdgeMesh {
 
     /// Angle-weighted unit vertex normals (Thürmer & Wüthrich 1998), computed
     /// face by face: each face adds its normal times its corner angle.
+    /// Triangles take a fast path: one cross product gives the normal and,
+    /// as twice the area, the sine part of all three corner angles.
     #[must_use]
     pub fn vertex_normals(&self) -> Vec<Vec3> {
+        use crate::normals::fast_angle;
         let mut normals = vec![Vec3::ZERO; self.num_vertices()];
         for f in self.faces() {
             let h0 = self.face_halfedge(f);
+            let h1 = self.next_halfedge(h0);
+            let h2 = self.next_halfedge(h1);
+            if self.next_halfedge(h2) == h0 {
+                let (a, b, c) = (self.to_vertex(h2), self.to_vertex(h0), self.to_vertex(h1));
+                let (pa, pb, pc) = (self.position(a), self.position(b), self.position(c));
+                let (ab, bc, ca) = (pb - pa, pc - pb, pa - pc);
+                let cross = ab.cross(-ca);
+                let len = cross.length();
+                if len == 0.0 {
+                    continue;
+                }
+                let n = cross / len;
+                normals[a.idx()] += n * fast_angle(len, -ca.dot(ab));
+                normals[b.idx()] += n * fast_angle(len, -ab.dot(bc));
+                normals[c.idx()] += n * fast_angle(len, -bc.dot(ca));
+                continue;
+            }
             let n = self.face_normal(f);
             if n == Vec3::ZERO {
                 continue;
             }
-            // Walk the corners: at the head of h, between h and next(h).
             let mut h = h0;
             loop {
                 let nx = self.next_halfedge(h);

@@ -255,6 +255,15 @@ fn winged_edge_and_compact_agree_with_half_edge() {
             assert!(same_cycle(&fv, &wv), "{name}: face {}", f.0);
             assert_eq!(h.face_faces(f).count(), w.faces_of_face(f).count());
         }
+        // Back to indexed form: the same faces (up to where each face starts).
+        let (hi, wi) = (h.to_indexed(), w.to_indexed());
+        assert_eq!(hi.positions, wi.positions);
+        for (a, b) in hi.faces().zip(wi.faces()) {
+            assert!(same_cycle(a, b), "{name}: winged-edge face {a:?} vs {b:?}");
+        }
+        if let Some(c) = &c {
+            assert_eq!(c.to_indexed(), hi, "{name}: compact");
+        }
         let per_vertex = |bytes: usize| bytes as f64 / h.num_vertices() as f64;
         assert!(per_vertex(w.memory_bytes()) > per_vertex(h.memory_bytes()));
         if let Some(c) = &c {
