@@ -2,8 +2,8 @@
 //! command line. Each subcommand lives in its own module under `cmd/`.
 
 mod cmd;
-mod npy;
-mod workload;
+
+use raymesh::{npy, workload};
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;

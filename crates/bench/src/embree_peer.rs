@@ -1,0 +1,156 @@
+//! Intel Embree 3 through its C API, with the mesh's own vertex and index
+//! buffers shared (not copied), for side-by-side measurements.
+//!
+//! The FFI calls are `unsafe`; each block states what keeps it sound. This
+//! module is the only unsafe code of the benchmark crate, and the library
+//! crates never depend on it.
+#![allow(unsafe_code)]
+
+use embree::sys::{
+    rtcAttachGeometry, rtcCommitGeometry, rtcCommitScene, rtcIntersect1, rtcNewDevice,
+    rtcNewGeometry, rtcNewScene, rtcOccluded1, rtcReleaseDevice, rtcReleaseGeometry,
+    rtcReleaseScene, rtcSetDeviceMemoryMonitorFunction, rtcSetSceneBuildQuality,
+    rtcSetSharedGeometryBuffer, RTCBufferType, RTCBuildQuality, RTCDevice, RTCFormat,
+    RTCGeometryType, RTCHit, RTCRay, RTCRayHit, RTCScene,
+};
+use raymesh_geometry::Vec3;
+use std::sync::atomic::{AtomicI64, Ordering};
+use std::time::Instant;
+
+/// Bytes Embree has allocated, as its memory monitor reports them.
+static ALLOCATED: AtomicI64 = AtomicI64::new(0);
+
+unsafe extern "C" fn monitor(_user: *mut std::ffi::c_void, bytes: isize, _post: bool) -> bool {
+    ALLOCATED.fetch_add(bytes as i64, Ordering::Relaxed);
+    true
+}
+
+/// An Embree scene over one triangle mesh.
+pub struct EmbreeScene {
+    device: RTCDevice,
+    scene: RTCScene,
+    // Shared with Embree: must outlive `scene`.
+    _vertices: Vec<f32>,
+    _indices: Vec<u32>,
+    /// Milliseconds to build the BVH (geometry set-up and `rtcCommitScene`).
+    pub build_ms: f64,
+    /// Bytes Embree allocated while building.
+    pub bytes: i64,
+}
+
+impl EmbreeScene {
+    /// Builds Embree's default BVH (build quality medium) with `threads` threads.
+    pub fn new(positions: &[Vec3], triangles: &[[u32; 3]], threads: usize) -> Self {
+        // Embree reads vertices 16 bytes at a time: one float of padding at the end.
+        let mut vertices: Vec<f32> = positions.iter().flat_map(|p| p.to_array()).collect();
+        vertices.push(0.0);
+        let indices: Vec<u32> = triangles.iter().flatten().copied().collect();
+        let config =
+            std::ffi::CString::new(format!("threads={threads}")).expect("no NUL in config");
+        // SAFETY: the config string lives across the call; the buffers handed
+        // to rtcSetSharedGeometryBuffer are owned by the returned value, which
+        // releases the scene (and so every use of them) in Drop before they
+        // are freed; counts match the buffers' lengths.
+        unsafe {
+            let device = rtcNewDevice(config.as_ptr());
+            assert!(!device.is_null(), "Embree: rtcNewDevice failed");
+            rtcSetDeviceMemoryMonitorFunction(device, Some(monitor), std::ptr::null_mut());
+            let start = Instant::now();
+            let before = ALLOCATED.load(Ordering::Relaxed);
+            let geom = rtcNewGeometry(device, RTCGeometryType::TRIANGLE);
+            rtcSetSharedGeometryBuffer(
+                geom,
+                RTCBufferType::VERTEX,
+                0,
+                RTCFormat::FLOAT3,
+                vertices.as_ptr().cast(),
+                0,
+                12,
+                positions.len(),
+            );
+            rtcSetSharedGeometryBuffer(
+                geom,
+                RTCBufferType::INDEX,
+                0,
+                RTCFormat::UINT3,
+                indices.as_ptr().cast(),
+                0,
+                12,
+                triangles.len(),
+            );
+            rtcCommitGeometry(geom);
+            let scene = rtcNewScene(device);
+            rtcSetSceneBuildQuality(scene, RTCBuildQuality::MEDIUM);
+            rtcAttachGeometry(scene, geom);
+            rtcReleaseGeometry(geom);
+            rtcCommitScene(scene);
+            let build_ms = start.elapsed().as_secs_f64() * 1e3;
+            let bytes = ALLOCATED.load(Ordering::Relaxed) - before;
+            Self {
+                device,
+                scene,
+                _vertices: vertices,
+                _indices: indices,
+                build_ms,
+                bytes,
+            }
+        }
+    }
+
+    fn ray(r: &[f32; 8]) -> RTCRay {
+        RTCRay {
+            org_x: r[0],
+            org_y: r[1],
+            org_z: r[2],
+            tnear: r[3],
+            dir_x: r[4],
+            dir_y: r[5],
+            dir_z: r[6],
+            time: 0.0,
+            tfar: r[7],
+            mask: u32::MAX,
+            id: 0,
+            flags: 0,
+        }
+    }
+
+    /// Closest hit: `(t, prim, u, v)`, or `None`.
+    pub fn intersect(&self, r: &[f32; 8]) -> Option<(f32, u32, f32, f32)> {
+        let mut ctx = embree::IntersectContext::incoherent();
+        let mut rh = RTCRayHit {
+            ray: Self::ray(r),
+            hit: RTCHit {
+                Ng_x: 0.0,
+                Ng_y: 0.0,
+                Ng_z: 0.0,
+                u: 0.0,
+                v: 0.0,
+                primID: u32::MAX,
+                geomID: u32::MAX,
+                instID: [u32::MAX],
+            },
+        };
+        // SAFETY: the scene is committed and alive; ctx and rh are valid for the call.
+        unsafe { rtcIntersect1(self.scene, &mut ctx, &mut rh) };
+        (rh.hit.geomID != u32::MAX).then_some((rh.ray.tfar, rh.hit.primID, rh.hit.u, rh.hit.v))
+    }
+
+    /// Any hit.
+    pub fn occluded(&self, r: &[f32; 8]) -> bool {
+        let mut ctx = embree::IntersectContext::incoherent();
+        let mut ray = Self::ray(r);
+        // SAFETY: as for intersect.
+        unsafe { rtcOccluded1(self.scene, &mut ctx, &mut ray) };
+        ray.tfar == f32::NEG_INFINITY
+    }
+}
+
+impl Drop for EmbreeScene {
+    fn drop(&mut self) {
+        // SAFETY: released once, scene before device; nothing uses them after.
+        unsafe {
+            rtcReleaseScene(self.scene);
+            rtcReleaseDevice(self.device);
+        }
+    }
+}
