@@ -58,23 +58,17 @@ fn scan<C: RayCounter>(
 /// Brute force behind one bounding box (the lecture's BoundedSurface): a ray
 /// that misses the box tests nothing.
 #[derive(Clone, Debug)]
-pub struct BoundedList {
-    len: u32,
-    bounds: Aabb,
-}
+pub struct BoundedList(BruteForce);
 
 impl BoundedList {
     /// The box around the given primitive boxes.
     #[must_use]
     pub fn new(boxes: &[Aabb]) -> Self {
-        Self {
-            len: boxes.len() as u32,
-            bounds: boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(*b)),
-        }
+        Self(BruteForce::new(boxes))
     }
 
     pub(crate) fn bounds(&self) -> Aabb {
-        self.bounds
+        self.0.bounds
     }
 
     pub(crate) fn stats(&self) -> AccelStats {
@@ -83,7 +77,7 @@ impl BoundedList {
             leaves: 1,
             depth: 1,
             bytes: std::mem::size_of::<Aabb>(),
-            sah_cost: 1.0 + self.len as f64,
+            sah_cost: 1.0 + self.0.len as f64,
             ..AccelStats::default()
         }
     }
@@ -91,8 +85,8 @@ impl BoundedList {
     #[inline]
     pub(crate) fn traverse<C: RayCounter>(&self, ray: &Ray, counter: &mut C, leaf: &mut impl Leaf) {
         counter.node();
-        if self.bounds.intersect_ray(ray, ray.tmax()).is_some() {
-            scan(0..self.len, ray, counter, leaf);
+        if self.0.bounds.intersect_ray(ray, ray.tmax()).is_some() {
+            self.0.traverse(ray, counter, leaf);
         }
     }
 }

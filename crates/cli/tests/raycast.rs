@@ -1,22 +1,15 @@
 //! End-to-end tests of `raymesh rays` and `raymesh raycast`.
 
-use std::path::{Path, PathBuf};
+mod common;
+use common::*;
 use std::process::Command;
 
-fn raymesh() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_raymesh"))
-}
+use std::path::{Path, PathBuf};
 
 fn data(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("../../tests/data")
         .join(name)
-}
-
-fn tmpdir(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("raymesh-{tag}-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
 }
 
 fn run_ok(cmd: &mut Command) -> String {

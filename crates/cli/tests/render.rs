@@ -1,11 +1,9 @@
 //! End-to-end tests of `raymesh render`: outputs, and never overwriting a file the user did not name.
 
-use std::path::PathBuf;
-use std::process::Command;
+mod common;
+use common::*;
 
-fn raymesh() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_raymesh"))
-}
+use std::path::PathBuf;
 
 fn data(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))

@@ -4,15 +4,17 @@ use super::HalfEdgeMesh;
 use crate::handle::{Edge, Face, HalfEdge, Vertex};
 use raymesh_geometry::Vec3;
 
-/// Outgoing half-edges of a vertex, counter-clockwise (see
-/// [`HalfEdgeMesh::outgoing_halfedges`]).
-pub struct Outgoing<'a> {
+/// Half-edges visited by repeatedly stepping from a start until it comes
+/// round again: around a vertex (see [`HalfEdgeMesh::outgoing_halfedges`])
+/// or a face (see [`HalfEdgeMesh::face_halfedges`]).
+pub struct Circulator<'a> {
     mesh: &'a HalfEdgeMesh,
+    step: fn(&HalfEdgeMesh, HalfEdge) -> HalfEdge,
     start: HalfEdge,
     cur: HalfEdge,
 }
 
-impl Iterator for Outgoing<'_> {
+impl Iterator for Circulator<'_> {
     type Item = HalfEdge;
     #[inline]
     fn next(&mut self) -> Option<HalfEdge> {
@@ -20,32 +22,7 @@ impl Iterator for Outgoing<'_> {
         if !h.is_valid() {
             return None;
         }
-        let n = self.mesh.ccw_rotated(h);
-        self.cur = if n == self.start {
-            HalfEdge::INVALID
-        } else {
-            n
-        };
-        Some(h)
-    }
-}
-
-/// Half-edges of a face in order (see [`HalfEdgeMesh::face_halfedges`]).
-pub struct FaceLoop<'a> {
-    mesh: &'a HalfEdgeMesh,
-    start: HalfEdge,
-    cur: HalfEdge,
-}
-
-impl Iterator for FaceLoop<'_> {
-    type Item = HalfEdge;
-    #[inline]
-    fn next(&mut self) -> Option<HalfEdge> {
-        let h = self.cur;
-        if !h.is_valid() {
-            return None;
-        }
-        let n = self.mesh.next_halfedge(h);
+        let n = (self.step)(self.mesh, h);
         self.cur = if n == self.start {
             HalfEdge::INVALID
         } else {
@@ -73,10 +50,11 @@ impl HalfEdgeMesh {
     /// Outgoing half-edges of `v`, counter-clockwise, starting with its
     /// boundary half-edge when it has one.
     #[must_use]
-    pub fn outgoing_halfedges(&self, v: Vertex) -> Outgoing<'_> {
+    pub fn outgoing_halfedges(&self, v: Vertex) -> Circulator<'_> {
         let h = self.vertex_halfedge(v);
-        Outgoing {
+        Circulator {
             mesh: self,
+            step: Self::ccw_rotated,
             start: h,
             cur: h,
         }
@@ -91,17 +69,14 @@ impl HalfEdgeMesh {
     /// counter-clockwise needs the previous half-edge. Boundary vertices
     /// turn fully too (boundary loops are linked), starting at the boundary.
     pub fn vertex_vertices_cw(&self, v: Vertex) -> impl Iterator<Item = Vertex> + '_ {
-        let start = self.vertex_halfedge(v);
-        let mut cur = start;
-        std::iter::from_fn(move || {
-            if !cur.is_valid() {
-                return None;
-            }
-            let h = cur;
-            let n = self.cw_rotated(h);
-            cur = if n == start { HalfEdge::INVALID } else { n };
-            Some(self.to_vertex(h))
-        })
+        let h = self.vertex_halfedge(v);
+        Circulator {
+            mesh: self,
+            step: Self::cw_rotated,
+            start: h,
+            cur: h,
+        }
+        .map(|h| self.to_vertex(h))
     }
 
     /// Faces around `v`, counter-clockwise.
@@ -124,10 +99,11 @@ impl HalfEdgeMesh {
 
     /// Half-edges of face `f`, in its winding order.
     #[must_use]
-    pub fn face_halfedges(&self, f: Face) -> FaceLoop<'_> {
+    pub fn face_halfedges(&self, f: Face) -> Circulator<'_> {
         let h = self.face_halfedge(f);
-        FaceLoop {
+        Circulator {
             mesh: self,
+            step: Self::next_halfedge,
             start: h,
             cur: h,
         }

@@ -18,10 +18,12 @@ impl HalfEdgeMesh {
         self.h_face.iter().filter(|f| !f.is_valid()).count()
     }
 
-    /// The two neighbours of a boundary vertex along its boundary.
-    fn boundary_neighbors(&self, v: Vertex) -> (Vertex, Vertex) {
+    /// The cubic B-spline rule both schemes use on a boundary: `3/4` of the
+    /// vertex and `1/8` of each neighbour along the boundary.
+    fn boundary_vertex_point(&self, v: Vertex) -> Vec3 {
         let h = self.vertex_halfedge(v);
-        (self.to_vertex(h), self.from_vertex(self.prev_halfedge(h)))
+        let (a, b) = (self.to_vertex(h), self.from_vertex(self.prev_halfedge(h)));
+        0.75 * self.position(v) + 0.125 * (self.position(a) + self.position(b))
     }
 
     /// One level of Loop subdivision (Loop, "Smooth subdivision surfaces
@@ -44,8 +46,7 @@ impl HalfEdgeMesh {
             let q = if !h.is_valid() {
                 p
             } else if self.is_boundary_halfedge(h) {
-                let (a, b) = self.boundary_neighbors(v);
-                0.75 * p + 0.125 * (self.position(a) + self.position(b))
+                self.boundary_vertex_point(v)
             } else {
                 let (mut sum, mut n) = (Vec3::ZERO, 0u32);
                 for w in self.vertex_vertices(v) {
@@ -121,8 +122,7 @@ impl HalfEdgeMesh {
             let q = if !h.is_valid() {
                 p
             } else if self.is_boundary_halfedge(h) {
-                let (a, b) = self.boundary_neighbors(v);
-                0.75 * p + 0.125 * (self.position(a) + self.position(b))
+                self.boundary_vertex_point(v)
             } else {
                 let (mut f_sum, mut r_sum, mut n) = (Vec3::ZERO, Vec3::ZERO, 0.0f32);
                 for o in self.outgoing_halfedges(v) {
