@@ -1,7 +1,7 @@
 //! The one factory: a structure chosen by name, behind one enum.
 
 use crate::{
-    bvh::BvhBuilder, AccelStats, BoundedList, BruteForce, Bvh, Grid, KdTree, Leaf, RayCounter,
+    bvh::BvhBuilder, AccelStats, BoundedList, BruteForce, Bvh, Bvh4, Grid, KdTree, Leaf, RayCounter,
 };
 use raymesh_geometry::{Aabb, Ray};
 use std::fmt;
@@ -20,6 +20,8 @@ pub enum AccelKind {
     BvhBinned,
     /// BVH by full-sweep SAH (MacDonald & Booth 1990).
     BvhSweep,
+    /// 4-wide BVH collapsed from the binned SAH tree.
+    Bvh4,
     /// Uniform grid with 3D-DDA traversal (Amanatides & Woo 1987).
     Grid,
     /// k-d tree by binned SAH with empty-space cut-off (Wald & Havran 2006).
@@ -28,12 +30,13 @@ pub enum AccelKind {
 
 impl AccelKind {
     /// Every kind, in the order tools list them.
-    pub const ALL: [AccelKind; 7] = [
+    pub const ALL: [AccelKind; 8] = [
         Self::Brute,
         Self::Aabb,
         Self::BvhMedian,
         Self::BvhBinned,
         Self::BvhSweep,
+        Self::Bvh4,
         Self::Grid,
         Self::KdTree,
     ];
@@ -52,6 +55,7 @@ impl AccelKind {
             Self::BvhMedian => "bvh-median",
             Self::BvhBinned => "bvh-binned",
             Self::BvhSweep => "bvh-sweep",
+            Self::Bvh4 => "bvh4",
             Self::Grid => "grid",
             Self::KdTree => "kdtree",
         }
@@ -122,6 +126,8 @@ pub enum Accel {
     Aabb(BoundedList),
     /// See [`Bvh`]; the kind says which builder made it.
     Bvh(Bvh, AccelKind),
+    /// See [`Bvh4`].
+    Bvh4(Bvh4),
     /// See [`Grid`].
     Grid(Grid),
     /// See [`KdTree`].
@@ -138,6 +144,9 @@ impl Accel {
             AccelKind::BvhMedian => Self::Bvh(BvhBuilder::Median.build(boxes, config), kind),
             AccelKind::BvhBinned => Self::Bvh(BvhBuilder::BinnedSah.build(boxes, config), kind),
             AccelKind::BvhSweep => Self::Bvh(BvhBuilder::SweepSah.build(boxes, config), kind),
+            AccelKind::Bvh4 => Self::Bvh4(Bvh4::from_binary(
+                BvhBuilder::BinnedSah.build(boxes, config),
+            )),
             AccelKind::Grid => Self::Grid(Grid::build(boxes, config)),
             AccelKind::KdTree => Self::KdTree(KdTree::build(boxes, config)),
         }
@@ -150,6 +159,7 @@ impl Accel {
             Self::Brute(_) => AccelKind::Brute,
             Self::Aabb(_) => AccelKind::Aabb,
             Self::Bvh(_, k) => *k,
+            Self::Bvh4(_) => AccelKind::Bvh4,
             Self::Grid(_) => AccelKind::Grid,
             Self::KdTree(_) => AccelKind::KdTree,
         }
@@ -162,6 +172,7 @@ impl Accel {
             Self::Brute(b) => b.bounds(),
             Self::Aabb(b) => b.bounds(),
             Self::Bvh(b, _) => b.bounds(),
+            Self::Bvh4(b) => b.bounds(),
             Self::Grid(g) => g.bounds(),
             Self::KdTree(k) => k.bounds(),
         }
@@ -174,6 +185,7 @@ impl Accel {
             Self::Brute(b) => b.stats(),
             Self::Aabb(b) => b.stats(),
             Self::Bvh(b, _) => b.stats(),
+            Self::Bvh4(b) => b.stats(),
             Self::Grid(g) => g.stats(),
             Self::KdTree(k) => k.stats(),
         };
@@ -192,6 +204,7 @@ impl Accel {
             Self::Brute(b) => b.traverse(ray, counter, leaf),
             Self::Aabb(b) => b.traverse(ray, counter, leaf),
             Self::Bvh(b, _) => b.traverse(ray, counter, leaf),
+            Self::Bvh4(b) => b.traverse(ray, counter, leaf),
             Self::Grid(g) => g.traverse(ray, counter, leaf),
             Self::KdTree(k) => k.traverse(ray, counter, leaf),
         }

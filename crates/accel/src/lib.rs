@@ -26,7 +26,7 @@ mod stats;
 
 pub use accel::{Accel, AccelKind, BuildConfig};
 pub use brute::{BoundedList, BruteForce};
-pub use bvh::{Bvh, BvhBuilder};
+pub use bvh::{Bvh, Bvh4, BvhBuilder};
 pub use grid::Grid;
 pub use instance::{Instance, Instances};
 pub use kdtree::KdTree;

@@ -68,11 +68,20 @@ impl<P: Primitives> Scene<P> {
         let mut accel = Accel::build(kind, &boxes, config);
         let mut prims = prims;
         let mut original = None;
-        if let Accel::Bvh(bvh, _) = &mut accel {
-            if let Some(p) = prims.reordered(bvh.prim_ids()) {
-                prims = p;
-                original = Some(bvh.take_prim_ids());
+        match &mut accel {
+            Accel::Bvh(bvh, _) => {
+                if let Some(p) = prims.reordered(bvh.prim_ids()) {
+                    prims = p;
+                    original = Some(bvh.take_prim_ids());
+                }
             }
+            Accel::Bvh4(bvh) => {
+                if let Some(p) = prims.reordered(bvh.prim_ids()) {
+                    prims = p;
+                    original = Some(bvh.take_prim_ids());
+                }
+            }
+            _ => {}
         }
         let build_ms = start.elapsed().as_secs_f64() * 1e3;
         let bounds = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(*b));

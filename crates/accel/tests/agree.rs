@@ -8,11 +8,12 @@ use raymesh_accel::*;
 use raymesh_geometry::{Mat4, Sphere};
 use std::path::PathBuf;
 
-const KINDS: [AccelKind; 6] = [
+const KINDS: [AccelKind; 7] = [
     AccelKind::Aabb,
     AccelKind::BvhMedian,
     AccelKind::BvhBinned,
     AccelKind::BvhSweep,
+    AccelKind::Bvh4,
     AccelKind::Grid,
     AccelKind::KdTree,
 ];

@@ -6,8 +6,10 @@
 //! farther on a fixed-size stack, whose depth the builders bound.
 
 mod build;
+mod wide;
 
 pub use build::BvhBuilder;
+pub use wide::{Bvh4, Node4};
 
 use crate::{AccelStats, Leaf, RayCounter};
 use raymesh_geometry::{cull_bound, Aabb, Ray, Vec3};
@@ -24,9 +26,9 @@ pub(crate) const STACK_SIZE: usize = 96;
 #[repr(C)]
 pub struct Node {
     min: [f32; 3],
-    count: u32,
+    pub(crate) count: u32,
     max: [f32; 3],
-    index: u32,
+    pub(crate) index: u32,
 }
 
 const _: () = assert!(std::mem::size_of::<Node>() == 32);
