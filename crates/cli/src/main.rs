@@ -32,7 +32,26 @@ enum Command {
     Render(cmd::render::Args),
 }
 
+/// Ends quietly when the reader of our output goes away (`raymesh … | head`):
+/// `println!` panics on a broken pipe, and that is no error of the user's.
+fn quiet_on_broken_pipe() {
+    let default = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        let msg = info
+            .payload()
+            .downcast_ref::<String>()
+            .map(String::as_str)
+            .or_else(|| info.payload().downcast_ref::<&str>().copied())
+            .unwrap_or("");
+        if msg.contains("Broken pipe") {
+            std::process::exit(141); // 128 + SIGPIPE, as shells report it
+        }
+        default(info);
+    }));
+}
+
 fn main() -> ExitCode {
+    quiet_on_broken_pipe();
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Info(a) => cmd::info::run(&a),
