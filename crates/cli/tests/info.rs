@@ -109,5 +109,11 @@ fn a_closed_pipe_ends_quietly() {
     let out = child.wait_with_output().unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!err.contains("panicked"), "{err}");
-    assert_eq!(out.status.code(), Some(141));
+    // 141 when the write met the closed pipe; 0 in the rare case that the
+    // output fit in the pipe's buffer before the reader went away.
+    assert!(
+        matches!(out.status.code(), Some(141) | Some(0)),
+        "{:?}",
+        out.status
+    );
 }
