@@ -22,6 +22,8 @@ enum Command {
     Info(cmd::info::Args),
     /// Cast rays from a .npy file at a mesh through a chosen acceleration structure.
     Raycast(cmd::raycast::Args),
+    /// Run BENCH.md's workloads through the chosen structures and report speed, size and cost.
+    Bench(cmd::bench::Args),
     /// Write one of BENCH.md's ray workloads for a mesh as a .npy file.
     Rays(cmd::rays::Args),
     /// Connectivity of a mesh (half-edge, winged-edge, compact): topology, repairs, memory, timings.
@@ -57,6 +59,7 @@ fn main() -> ExitCode {
         Command::Info(a) => cmd::info::run(&a),
         Command::Raycast(a) => cmd::raycast::run(&a),
         Command::Rays(a) => cmd::rays::run(&a),
+        Command::Bench(a) => cmd::bench::run(&a),
         Command::Render(a) => cmd::render::run(&a),
         Command::Mesh(a) => cmd::mesh::run(&a),
         Command::Subdivide(a) => cmd::subdivide::run(&a),

@@ -165,3 +165,48 @@ fn bad_inputs_are_clear_errors() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("unknown structure 'octree'"));
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn bench_reports_every_structure_workload_and_thread_count() {
+    let out = run_ok(raymesh().arg("bench").arg(data("sphere.ply")).args([
+        "--size",
+        "16",
+        "--repeat",
+        "1",
+        "--threads",
+        "1,2",
+        "--accel",
+        "bvh,grid",
+        "--json",
+    ]));
+    let rows: Vec<serde_json::Value> = out
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(
+        rows.len(),
+        2 * 4 * 2,
+        "structures × workloads × thread counts"
+    );
+    for r in &rows {
+        for key in [
+            "build_ms_1_thread",
+            "bytes_per_triangle",
+            "sah_cost",
+            "closest_mrays_per_s",
+            "any_hit_mrays_per_s",
+            "nodes_per_ray",
+            "triangles_per_ray",
+        ] {
+            assert!(r[key].as_f64().is_some_and(|v| v >= 0.0), "{key} in {r}");
+        }
+    }
+    let bad = raymesh()
+        .arg("bench")
+        .arg(data("sphere.ply"))
+        .args(["--workloads", "sideways"])
+        .output()
+        .unwrap();
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("unknown workload 'sideways'"));
+}

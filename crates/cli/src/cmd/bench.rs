@@ -1,0 +1,234 @@
+//! `raymesh bench MESH... [--accel LIST|all] [--workloads LIST] [--size N]
+//! [--threads LIST] [--repeat R] [--json]`: BENCH.md's workloads through
+//! every chosen structure, one table per mesh (or JSON lines).
+
+use crate::cmd::raycast::{count, trace};
+use crate::cmd::thread_pool;
+use crate::npy::HitRecord;
+use crate::workload::{make_rays, Workload};
+use anyhow::{bail, Result};
+use indicatif::{ProgressBar, ProgressStyle};
+use raymesh_accel::{AccelKind, Ray, Scene, TriangleMesh, Triangles};
+use raymesh_geometry::Vec3;
+use raymesh_mesh::io::read_mesh;
+use serde::Serialize;
+use std::io::IsTerminal;
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// Arguments of `raymesh bench`.
+#[derive(clap::Args)]
+pub struct Args {
+    /// Mesh files.
+    #[arg(required = true)]
+    pub meshes: Vec<PathBuf>,
+    /// Structures, comma-separated, or `all` (every structure but brute and aabb, which test every triangle).
+    #[arg(long, default_value = "bvh,bvh4,grid,kdtree")]
+    pub accel: String,
+    /// Workloads, comma-separated (BENCH.md).
+    #[arg(long, default_value = "primary,random,diffuse,shadow")]
+    pub workloads: String,
+    /// Image width and height of the workloads (random: the square root of the ray count).
+    #[arg(long, default_value_t = 1024)]
+    pub size: u32,
+    /// Thread counts, comma-separated (default: 1 and all cores).
+    #[arg(long)]
+    pub threads: Option<String>,
+    /// Timed repeats; the best is reported.
+    #[arg(long, default_value_t = 3)]
+    pub repeat: u32,
+    /// Print JSON lines instead of tables.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// One measured row.
+#[derive(Serialize)]
+struct Row {
+    mesh: String,
+    triangles: usize,
+    accel: &'static str,
+    workload: &'static str,
+    rays: usize,
+    threads: usize,
+    build_ms_1_thread: f64,
+    build_ms_all_threads: f64,
+    bytes_per_triangle: f64,
+    nodes: usize,
+    depth: usize,
+    sah_cost: f64,
+    closest_mrays_per_s: f64,
+    any_hit_mrays_per_s: f64,
+    nodes_per_ray: f64,
+    triangles_per_ray: f64,
+}
+
+fn parse_list<T: std::str::FromStr<Err = String>>(s: &str) -> Result<Vec<T>> {
+    s.split(',')
+        .map(|x| x.trim().parse::<T>().map_err(anyhow::Error::msg))
+        .collect()
+}
+
+/// Runs the command.
+pub fn run(args: &Args) -> Result<()> {
+    let accels: Vec<AccelKind> = if args.accel == "all" {
+        AccelKind::ALL
+            .into_iter()
+            .filter(|k| !matches!(k, AccelKind::Brute | AccelKind::Aabb))
+            .collect()
+    } else {
+        parse_list(&args.accel)?
+    };
+    let workloads: Vec<Workload> = parse_list(&args.workloads)?;
+    let all = thread_pool(None)?.current_num_threads();
+    let threads: Vec<usize> = match &args.threads {
+        Some(t) => t
+            .split(',')
+            .map(|x| x.trim().parse::<usize>())
+            .collect::<Result<_, _>>()?,
+        None if all > 1 => vec![1, all],
+        None => vec![1],
+    };
+    if threads.contains(&0) || args.size == 0 || args.size > 16384 {
+        bail!("thread counts must be at least 1 and --size within 1..=16384");
+    }
+    let pools: Vec<rayon::ThreadPool> = threads
+        .iter()
+        .map(|&t| thread_pool(Some(t)))
+        .collect::<Result<_>>()?;
+    let one = thread_pool(Some(1))?;
+    let steps = (args.meshes.len() * accels.len() * workloads.len()) as u64;
+    let bar = if std::io::stderr().is_terminal() {
+        let b = ProgressBar::new(steps);
+        b.set_style(
+            ProgressStyle::with_template("{spinner} bench [{bar:30}] {pos}/{len} {msg}")?
+                .progress_chars("=> "),
+        );
+        b
+    } else {
+        ProgressBar::hidden()
+    };
+    for path in &args.meshes {
+        let mesh = read_mesh(path)?;
+        let tm = TriangleMesh::new(mesh.positions.clone(), mesh.triangles());
+        let ntri = tm.triangles.len();
+        let reference = Scene::build(tm.clone(), AccelKind::FASTEST_BVH);
+        let rays: Vec<(Workload, Vec<Ray>)> = workloads
+            .iter()
+            .map(|&w| {
+                let r = make_rays(w, &reference, args.size, 1)
+                    .into_iter()
+                    .map(|r| {
+                        Ray::new(
+                            Vec3::new(r[0], r[1], r[2]),
+                            Vec3::new(r[4], r[5], r[6]),
+                            r[3],
+                            r[7],
+                        )
+                    })
+                    .collect();
+                (w, r)
+            })
+            .collect();
+        let mut rows = Vec::new();
+        for &accel in &accels {
+            let build = |pool: &rayon::ThreadPool| {
+                pool.install(|| {
+                    let t = Instant::now();
+                    let s = Scene::build(Triangles::from_mesh(&tm), accel);
+                    (t.elapsed().as_secs_f64() * 1e3, s)
+                })
+            };
+            let (build_1, scene) = build(&one);
+            let (build_all, _) = build(pools.last().expect("a pool"));
+            let st = scene.stats();
+            for (w, rs) in &rays {
+                bar.set_message(format!("{} {} {}", path.display(), accel, w.name()));
+                let (nodes_per_ray, tris_per_ray) =
+                    one.install(|| count(&scene, rs, w.name() == "shadow"));
+                let mut hits = vec![HitRecord::MISS; rs.len()];
+                for (pool, &t) in pools.iter().zip(&threads) {
+                    let mut time = |any: bool| {
+                        let mut best = f64::INFINITY;
+                        for _ in 0..args.repeat.max(1) {
+                            let s = Instant::now();
+                            pool.install(|| trace(&scene, rs, any, &mut hits));
+                            best = best.min(s.elapsed().as_secs_f64());
+                        }
+                        rs.len() as f64 / best / 1e6
+                    };
+                    let closest = time(false);
+                    let any = time(true);
+                    rows.push(Row {
+                        mesh: path.display().to_string(),
+                        triangles: ntri,
+                        accel: st.name,
+                        workload: w.name(),
+                        rays: rs.len(),
+                        threads: t,
+                        build_ms_1_thread: build_1,
+                        build_ms_all_threads: build_all,
+                        bytes_per_triangle: (st.bytes + ntri * 36) as f64 / ntri.max(1) as f64,
+                        nodes: st.nodes,
+                        depth: st.depth,
+                        sah_cost: st.sah_cost,
+                        closest_mrays_per_s: closest,
+                        any_hit_mrays_per_s: any,
+                        nodes_per_ray,
+                        triangles_per_ray: tris_per_ray,
+                    });
+                }
+                bar.inc(1);
+            }
+        }
+        bar.suspend(|| print_rows(&rows, args.json, path, ntri))?;
+    }
+    bar.finish_and_clear();
+    Ok(())
+}
+
+fn print_rows(rows: &[Row], json: bool, path: &std::path::Path, ntri: usize) -> Result<()> {
+    if json {
+        for r in rows {
+            println!("{}", serde_json::to_string(r)?);
+        }
+        return Ok(());
+    }
+    println!("\n{} ({ntri} triangles)", path.display());
+    println!(
+        "{:<11} {:<8} {:>3} {:>9} {:>9} {:>7} {:>8} {:>6} {:>6} {:>9} {:>9} {:>8} {:>8}",
+        "structure",
+        "workload",
+        "thr",
+        "build1 ms",
+        "buildN ms",
+        "B/tri",
+        "nodes",
+        "depth",
+        "SAH",
+        "closest",
+        "any-hit",
+        "nodes/r",
+        "tris/r"
+    );
+    for r in rows {
+        println!(
+            "{:<11} {:<8} {:>3} {:>9.1} {:>9.1} {:>7.1} {:>8} {:>6} {:>6.1} {:>9.2} {:>9.2} {:>8.1} {:>8.1}",
+            r.accel,
+            r.workload,
+            r.threads,
+            r.build_ms_1_thread,
+            r.build_ms_all_threads,
+            r.bytes_per_triangle,
+            r.nodes,
+            r.depth,
+            r.sah_cost,
+            r.closest_mrays_per_s,
+            r.any_hit_mrays_per_s,
+            r.nodes_per_ray,
+            r.triangles_per_ray
+        );
+    }
+    println!("(Mrays/s; closest and any-hit are the best of the repeats; nodes/r and tris/r are per ray, counted in a separate pass)");
+    Ok(())
+}
