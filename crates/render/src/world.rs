@@ -153,11 +153,18 @@ impl World {
         let err = |path: String, msg: String| SceneError::at(file, path, msg);
         let accel: AccelKind = desc.accel.parse().map_err(|e| err("accel".into(), e))?;
         let img = &desc.image;
-        if img.width == 0 || img.height == 0 || img.width > 1 << 15 || img.height > 1 << 15 {
+        // At most 2^27 pixels (16 bytes each while rendering: about 2 GiB).
+        let pixels = img.width as u64 * img.height as u64;
+        if img.width == 0
+            || img.height == 0
+            || img.width > 1 << 15
+            || img.height > 1 << 15
+            || pixels > 1 << 27
+        {
             return Err(err(
                 "image".into(),
                 format!(
-                    "image size {}×{} must be within 1..=32768",
+                    "image size {}×{} must be within 1..=32768 per side and 134,217,728 pixels",
                     img.width, img.height
                 ),
             ));

@@ -174,6 +174,7 @@ fn scene_errors_name_file_line_and_path() {
         (format!("{{{cam}, \"surfaces\": [{{\"type\": \"mesh\", \"file\": \"nope.off\"}}]}}"), ["bad.json", "at surfaces[0].file", "nope.off: cannot read"]),
         (format!("{{{cam}, \"accel\": \"octree\"}}"), ["bad.json", "at accel", "unknown structure 'octree'"]),
         (format!("{{{cam}, \"image\": {{\"spp\": 0}}}}"), ["bad.json", "at image.spp", "samples per pixel"]),
+        (format!("{{{cam}, \"image\": {{\"width\": 32768, \"height\": 32768}}}}"), ["bad.json", "at image", "134,217,728 pixels"]),
         (r#"{"camera": {"eye": [0, 0, 0], "target": [0, 0, 0]}}"#.to_string(), ["bad.json", "at camera", "degenerate camera"]),
         ("{\"camera\": {\"eye\": [0, 0, 5], \"target\": [0, 0, 0]},\n\n \"lights\": [{\"type\": \"point\"}]}".to_string(),
          ["bad.json:3:", "at lights[0]", "missing field `position`"]),

@@ -89,8 +89,8 @@ pub fn run(args: &Args) -> Result<()> {
         None if all > 1 => vec![1, all],
         None => vec![1],
     };
-    if threads.contains(&0) || args.size == 0 || args.size > 16384 {
-        bail!("thread counts must be at least 1 and --size within 1..=16384");
+    if threads.contains(&0) || args.size == 0 || args.size > 8192 {
+        bail!("thread counts must be at least 1 and --size within 1..=8192");
     }
     let pools: Vec<rayon::ThreadPool> = threads
         .iter()
