@@ -62,17 +62,17 @@ impl HalfEdgeMesh {
         self.garbage.get_or_insert_with(Default::default)
     }
 
-    fn delete_vertex(&mut self, v: Vertex) {
+    fn mark_vertex_deleted(&mut self, v: Vertex) {
         let n = self.num_vertices();
         mark(&mut self.garbage_mut().vertices, v.idx(), n);
     }
 
-    fn delete_edge(&mut self, e: Edge) {
+    fn mark_edge_deleted(&mut self, e: Edge) {
         let n = self.num_edges();
         mark(&mut self.garbage_mut().edges, e.idx(), n);
     }
 
-    fn delete_face(&mut self, f: Face) {
+    fn mark_face_deleted(&mut self, f: Face) {
         let n = self.num_faces();
         mark(&mut self.garbage_mut().faces, f.idx(), n);
     }
@@ -314,8 +314,8 @@ impl HalfEdgeMesh {
             self.v_half[v1.idx()] = on;
         }
         self.v_half[v0.idx()] = HalfEdge::INVALID;
-        self.delete_vertex(v0);
-        self.delete_edge(h.edge());
+        self.mark_vertex_deleted(v0);
+        self.mark_edge_deleted(h.edge());
         for (a, b, prev_ta) in [loop_h, loop_o].into_iter().flatten() {
             self.remove_loop(a, b, prev_ta, v1);
         }
@@ -344,8 +344,61 @@ impl HalfEdgeMesh {
         if self.v_half[v1.idx()] == a {
             self.v_half[v1.idx()] = b.twin();
         }
-        self.delete_face(f);
-        self.delete_edge(a.edge());
+        self.mark_face_deleted(f);
+        self.mark_edge_deleted(a.edge());
+    }
+
+    /// Deletes face `f`: its half-edges become boundary, edges left with no
+    /// face on either side are deleted (the boundary loops relinked around
+    /// them), and vertices left with no edge are deleted. Any polygon; the
+    /// elements stay until [`Self::garbage_collect`]. As pmp-library and
+    /// OpenMesh do, this may leave a vertex where two boundaries touch.
+    pub fn delete_face(&mut self, f: Face) {
+        if self.is_deleted_face(f) {
+            return;
+        }
+        let hs: Vec<HalfEdge> = self.face_halfedges(f).collect();
+        let vs: Vec<Vertex> = hs.iter().map(|&h| self.to_vertex(h)).collect();
+        for &h in &hs {
+            self.h_face[h.idx()] = Face::INVALID;
+        }
+        self.mark_face_deleted(f);
+        let dead: Vec<Edge> = hs
+            .iter()
+            .filter(|h| self.is_boundary_halfedge(h.twin()))
+            .map(|h| h.edge())
+            .collect();
+        for e in dead {
+            // h0 runs v1 → v0, h1 runs v0 → v1.
+            let (h0, h1) = (e.halfedge(0), e.halfedge(1));
+            let (v0, v1) = (self.to_vertex(h0), self.to_vertex(h1));
+            let (next0, next1) = (self.next_halfedge(h0), self.next_halfedge(h1));
+            let (prev0, prev1) = (self.prev_halfedge(h0), self.prev_halfedge(h1));
+            self.h_next[prev0.idx()] = next1;
+            self.h_next[prev1.idx()] = next0;
+            self.mark_edge_deleted(e);
+            if self.v_half[v0.idx()] == h1 {
+                if next0 == h1 {
+                    self.v_half[v0.idx()] = HalfEdge::INVALID;
+                    self.mark_vertex_deleted(v0);
+                } else {
+                    self.v_half[v0.idx()] = next0;
+                }
+            }
+            if self.v_half[v1.idx()] == h0 {
+                if next1 == h0 {
+                    self.v_half[v1.idx()] = HalfEdge::INVALID;
+                    self.mark_vertex_deleted(v1);
+                } else {
+                    self.v_half[v1.idx()] = next1;
+                }
+            }
+        }
+        for v in vs {
+            if !self.is_deleted_vertex(v) {
+                self.adjust_outgoing(v);
+            }
+        }
     }
 
     /// Drops deleted elements, renumbering the rest in order.

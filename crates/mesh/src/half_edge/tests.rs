@@ -278,6 +278,7 @@ enum Op {
     Split(usize, f32),
     Collapse(usize),
     Collect,
+    DeleteFace(usize),
 }
 
 fn op() -> impl Strategy<Value = Op> {
@@ -291,6 +292,9 @@ fn op() -> impl Strategy<Value = Op> {
 
 /// Applies one edit; returns whether it changed the mesh.
 fn apply(m: &mut HalfEdgeMesh, op: &Op) -> bool {
+    if m.num_edges() == 0 && !matches!(op, Op::Collect) {
+        return false;
+    }
     match *op {
         Op::Flip(e) => m.flip(Edge::new(e % m.num_edges())),
         Op::Split(e, t) => {
@@ -308,6 +312,15 @@ fn apply(m: &mut HalfEdgeMesh, op: &Op) -> bool {
         Op::Collect => {
             m.garbage_collect();
             true
+        }
+        Op::DeleteFace(f) => {
+            if m.num_faces() == 0 {
+                return false;
+            }
+            let f = Face::new(f % m.num_faces());
+            let live = !m.is_deleted_face(f);
+            m.delete_face(f);
+            live
         }
     }
 }
@@ -341,6 +354,63 @@ proptest! {
             prop_assert_eq!(g.boundary_loops().len(), loops);
         }
     }
+}
+
+fn op_with_deletes() -> impl Strategy<Value = Op> {
+    prop_oneof![4 => op(), 1 => any::<usize>().prop_map(Op::DeleteFace)]
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: edit_cases(), failure_persistence: None, ..ProptestConfig::default() })]
+
+    /// Edits mixed with face deletions keep the mesh valid, and each
+    /// deletion removes exactly one face.
+    #[test]
+    fn random_edits_with_deletions_keep_the_mesh_valid(mesh in 0usize..3, ops in proptest::collection::vec(op_with_deletes(), 1..60)) {
+        let name = ["sphere.ply", "mesh_with_border.off", "cube_quad.off"][mesh];
+        let (mut m, _) = build(&data(name));
+        for (i, o) in ops.iter().enumerate() {
+            let live = |m: &HalfEdgeMesh| m.faces().filter(|&f| !m.is_deleted_face(f)).count();
+            let before = live(&m);
+            let changed = apply(&mut m, o);
+            prop_assert!(m.validate().is_ok(), "{name}: step {i} {o:?}: {:?}", m.validate());
+            if let Op::DeleteFace(_) = o {
+                prop_assert_eq!(live(&m), before - changed as usize);
+            }
+        }
+        m.garbage_collect();
+        prop_assert!(m.validate().is_ok());
+        prop_assert_eq!(m.to_indexed().num_faces(), m.num_faces());
+    }
+}
+
+#[test]
+fn deleting_faces_by_hand() {
+    // Deleting both faces of a square leaves nothing; deleting one leaves a triangle.
+    let p = vec![Vec3::ZERO, Vec3::X, Vec3::new(1.0, 1.0, 0.0), Vec3::Y];
+    let (mut m, _) = build(&IndexedMesh::from_triangles(p, &[[0, 1, 2], [0, 2, 3]]).unwrap());
+    m.delete_face(Face(1));
+    m.validate().unwrap();
+    m.garbage_collect();
+    assert_eq!((m.num_vertices(), m.num_edges(), m.num_faces()), (3, 3, 1));
+    assert_eq!(m.boundary_loops().len(), 1);
+    m.delete_face(Face(0));
+    m.garbage_collect();
+    assert_eq!((m.num_vertices(), m.num_edges(), m.num_faces()), (0, 0, 0));
+    // A hole in a closed mesh: one boundary loop of the face's size.
+    let (mut s, _) = build(&data("sphere.ply"));
+    s.delete_face(Face(7));
+    s.garbage_collect();
+    s.validate().unwrap();
+    assert_eq!(
+        (
+            s.num_faces(),
+            s.boundary_loops().len(),
+            s.boundary_loops()[0].len()
+        ),
+        (319, 1, 3)
+    );
+    assert_eq!(s.euler_characteristic(), 1);
 }
 
 #[test]
