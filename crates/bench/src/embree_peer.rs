@@ -145,6 +145,13 @@ impl EmbreeScene {
     }
 }
 
+// SAFETY: Embree's committed scenes may be queried from any number of
+// threads at once (rtcIntersect1/rtcOccluded1 are thread-safe), and nothing
+// mutates the scene or the shared buffers after construction.
+unsafe impl Send for EmbreeScene {}
+// SAFETY: as for Send.
+unsafe impl Sync for EmbreeScene {}
+
 impl Drop for EmbreeScene {
     fn drop(&mut self) {
         // SAFETY: released once, scene before device; nothing uses them after.
