@@ -1,6 +1,7 @@
 //! Axis-aligned bounding boxes and the slab test.
 
-use crate::{float::gamma, Ray};
+use crate::float::{max_nan_second, min_nan_second, ROBUST_EXIT};
+use crate::Ray;
 use glam::Vec3;
 
 /// An axis-aligned box `[min, max]`. The empty box has `min = +inf`,
@@ -16,30 +17,6 @@ pub struct Aabb {
 impl Default for Aabb {
     fn default() -> Self {
         Self::EMPTY
-    }
-}
-
-/// `1 + 2 γ(3)`: scaling the exit distance by it keeps the slab test
-/// conservative under rounding (Ize, "Robust BVH Ray Traversal", JCGT 2013).
-const ROBUST_EXIT: f32 = 1.0 + 2.0 * gamma(3);
-
-/// `a` if `a > b`, else `b`: returns `b` when `a` is NaN (one `maxss`).
-#[inline(always)]
-fn max_nan_second(a: f32, b: f32) -> f32 {
-    if a > b {
-        a
-    } else {
-        b
-    }
-}
-
-/// `a` if `a < b`, else `b`: returns `b` when `a` is NaN (one `minss`).
-#[inline(always)]
-fn min_nan_second(a: f32, b: f32) -> f32 {
-    if a < b {
-        a
-    } else {
-        b
     }
 }
 

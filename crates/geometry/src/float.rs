@@ -11,6 +11,34 @@ pub const fn gamma(n: i32) -> f32 {
     (n as f32 * MACHINE_EPSILON) / (1.0 - n as f32 * MACHINE_EPSILON)
 }
 
+/// `1 + 2 γ(3)`: scaling a slab test's exit distance by it keeps the test
+/// conservative under rounding (Ize, "Robust BVH Ray Traversal", JCGT 2013).
+pub const ROBUST_EXIT: f32 = 1.0 + 2.0 * gamma(3);
+
+/// `a` if `a > b`, else `b`: returns `b` when `a` is NaN, in one `maxss`
+/// (unlike `f32::max`, which adds NaN fix-ups). Slab tests pass the
+/// accumulator as `b`, so a NaN slab constrains nothing.
+#[inline(always)]
+#[must_use]
+pub fn max_nan_second(a: f32, b: f32) -> f32 {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
+/// `a` if `a < b`, else `b`: returns `b` when `a` is NaN, in one `minss`.
+#[inline(always)]
+#[must_use]
+pub fn min_nan_second(a: f32, b: f32) -> f32 {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
 /// The next representable `f32` above `x` (identity on +inf and NaN).
 #[inline]
 #[must_use]
@@ -44,6 +72,14 @@ mod tests {
         assert!(next_down(0.0) < 0.0);
         assert_eq!(next_up(f32::INFINITY), f32::INFINITY);
         assert!(next_up(-1.0) > -1.0);
+    }
+
+    #[test]
+    fn nan_second_keeps_the_accumulator() {
+        assert_eq!(max_nan_second(f32::NAN, 1.0), 1.0);
+        assert_eq!(min_nan_second(f32::NAN, 1.0), 1.0);
+        assert_eq!(max_nan_second(2.0, 1.0), 2.0);
+        assert_eq!(min_nan_second(0.5, 1.0), 0.5);
     }
 
     #[test]

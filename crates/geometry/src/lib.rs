@@ -14,7 +14,7 @@ mod sphere;
 mod triangle;
 
 pub use aabb::{cull_bound, Aabb};
-pub use float::{gamma, next_down, next_up};
+pub use float::{gamma, max_nan_second, min_nan_second, next_down, next_up, ROBUST_EXIT};
 pub use glam::{Mat3, Mat4, Quat, Vec2, Vec3};
 pub use ray::Ray;
 pub use sphere::{intersect_sphere, Sphere, SphereHit};

@@ -100,17 +100,12 @@ impl WingedEdgeMesh {
     /// when the vertex is the edge's tail and to `rprev` when it is its
     /// head, until the first edge comes round (counter-clockwise).
     pub fn edges_of_vertex(&self, v: Vertex) -> impl Iterator<Item = Edge> + '_ {
-        let start = self.v_edge[v.idx()];
-        let mut cur = start;
-        std::iter::from_fn(move || {
-            if !cur.is_valid() {
-                return None;
+        self.cycle(self.v_edge[v.idx()], move |w| {
+            if w.tail == v {
+                w.lprev
+            } else {
+                w.rprev
             }
-            let e = cur;
-            let w = self.edge(e);
-            let n = if w.tail == v { w.lprev } else { w.rprev };
-            cur = if n == start { Edge::INVALID } else { n };
-            Some(e)
         })
     }
 
@@ -129,15 +124,28 @@ impl WingedEdgeMesh {
     /// Edges of a face in its winding order: `lnext` where the face is on
     /// the edge's left, `rnext` where it is on its right.
     pub fn edges_of_face(&self, f: Face) -> impl Iterator<Item = Edge> + '_ {
-        let start = self.f_edge[f.idx()];
+        self.cycle(self.f_edge[f.idx()], move |w| {
+            if w.left == f {
+                w.lnext
+            } else {
+                w.rnext
+            }
+        })
+    }
+
+    /// Edges from `start`, stepping by `step` until `start` comes round.
+    fn cycle<'a>(
+        &'a self,
+        start: Edge,
+        step: impl Fn(&WingedEdge) -> Edge + 'a,
+    ) -> impl Iterator<Item = Edge> + 'a {
         let mut cur = start;
         std::iter::from_fn(move || {
             if !cur.is_valid() {
                 return None;
             }
             let e = cur;
-            let w = self.edge(e);
-            let n = if w.left == f { w.lnext } else { w.rnext };
+            let n = step(self.edge(e));
             cur = if n == start { Edge::INVALID } else { n };
             Some(e)
         })

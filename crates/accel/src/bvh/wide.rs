@@ -7,13 +7,12 @@
 
 use super::{Bvh, STACK_SIZE};
 use crate::{AccelStats, Leaf, RayCounter};
-use raymesh_geometry::{cull_bound, gamma, Aabb, Ray, Vec3};
+use raymesh_geometry::{
+    cull_bound, max_nan_second as max_ns, min_nan_second as min_ns, Aabb, Ray, Vec3, ROBUST_EXIT,
+};
 
 /// Children per node.
 const WIDTH: usize = 4;
-
-/// `1 + 2γ(3)`, as in [`Aabb::slab`]: keeps the exit conservative.
-const ROBUST_EXIT: f32 = 1.0 + 2.0 * gamma(3);
 
 /// Four children: boxes by axis and lane, and for each child either a node
 /// index (`count == 0`) or a leaf's first primitive slot and count. An
@@ -259,23 +258,5 @@ impl Bvh4 {
                 sp += 1;
             }
         }
-    }
-}
-
-#[inline(always)]
-fn max_ns(a: f32, b: f32) -> f32 {
-    if a > b {
-        a
-    } else {
-        b
-    }
-}
-
-#[inline(always)]
-fn min_ns(a: f32, b: f32) -> f32 {
-    if a < b {
-        a
-    } else {
-        b
     }
 }
