@@ -1,7 +1,8 @@
 //! The one factory: a structure chosen by name, behind one enum.
 
 use crate::{
-    bvh::BvhBuilder, AccelStats, BoundedList, BruteForce, Bvh, Bvh4, Grid, KdTree, Leaf, RayCounter,
+    bvh::BvhBuilder, AccelStats, BoundedList, BruteForce, Bvh, Bvh4, Bvh8, Grid, KdTree, Leaf,
+    RayCounter,
 };
 use raymesh_geometry::{Aabb, Ray};
 use std::fmt;
@@ -22,6 +23,8 @@ pub enum AccelKind {
     BvhSweep,
     /// 4-wide BVH collapsed from the binned SAH tree.
     Bvh4,
+    /// 8-wide BVH collapsed from the binned SAH tree, tested with AVX2.
+    Bvh8,
     /// Uniform grid with 3D-DDA traversal (Amanatides & Woo 1987).
     Grid,
     /// k-d tree by binned SAH with empty-space cut-off (Wald & Havran 2006).
@@ -30,13 +33,14 @@ pub enum AccelKind {
 
 impl AccelKind {
     /// Every kind, in the order tools list them.
-    pub const ALL: [AccelKind; 8] = [
+    pub const ALL: [AccelKind; 9] = [
         Self::Brute,
         Self::Aabb,
         Self::BvhMedian,
         Self::BvhBinned,
         Self::BvhSweep,
         Self::Bvh4,
+        Self::Bvh8,
         Self::Grid,
         Self::KdTree,
     ];
@@ -56,6 +60,7 @@ impl AccelKind {
             Self::BvhBinned => "bvh-binned",
             Self::BvhSweep => "bvh-sweep",
             Self::Bvh4 => "bvh4",
+            Self::Bvh8 => "bvh8",
             Self::Grid => "grid",
             Self::KdTree => "kdtree",
         }
@@ -128,6 +133,8 @@ pub enum Accel {
     Bvh(Bvh, AccelKind),
     /// See [`Bvh4`].
     Bvh4(Bvh4),
+    /// See [`Bvh8`].
+    Bvh8(Bvh8),
     /// See [`Grid`].
     Grid(Grid),
     /// See [`KdTree`].
@@ -147,6 +154,9 @@ impl Accel {
             AccelKind::Bvh4 => Self::Bvh4(Bvh4::from_binary(
                 BvhBuilder::BinnedSah.build(boxes, config),
             )),
+            AccelKind::Bvh8 => Self::Bvh8(Bvh8::from_binary(
+                BvhBuilder::BinnedSah.build(boxes, config),
+            )),
             AccelKind::Grid => Self::Grid(Grid::build(boxes, config)),
             AccelKind::KdTree => Self::KdTree(KdTree::build(boxes, config)),
         }
@@ -160,6 +170,7 @@ impl Accel {
             Self::Aabb(_) => AccelKind::Aabb,
             Self::Bvh(_, k) => *k,
             Self::Bvh4(_) => AccelKind::Bvh4,
+            Self::Bvh8(_) => AccelKind::Bvh8,
             Self::Grid(_) => AccelKind::Grid,
             Self::KdTree(_) => AccelKind::KdTree,
         }
@@ -173,6 +184,7 @@ impl Accel {
             Self::Aabb(b) => b.bounds(),
             Self::Bvh(b, _) => b.bounds(),
             Self::Bvh4(b) => b.bounds(),
+            Self::Bvh8(b) => b.bounds(),
             Self::Grid(g) => g.bounds(),
             Self::KdTree(k) => k.bounds(),
         }
@@ -186,6 +198,7 @@ impl Accel {
             Self::Aabb(b) => b.stats(),
             Self::Bvh(b, _) => b.stats(),
             Self::Bvh4(b) => b.stats(),
+            Self::Bvh8(b) => b.stats(),
             Self::Grid(g) => g.stats(),
             Self::KdTree(k) => k.stats(),
         };
@@ -205,6 +218,7 @@ impl Accel {
             Self::Aabb(b) => b.traverse(ray, counter, leaf),
             Self::Bvh(b, _) => b.traverse(ray, counter, leaf),
             Self::Bvh4(b) => b.traverse(ray, counter, leaf),
+            Self::Bvh8(b) => b.traverse(ray, counter, leaf),
             Self::Grid(g) => g.traverse(ray, counter, leaf),
             Self::KdTree(k) => k.traverse(ray, counter, leaf),
         }

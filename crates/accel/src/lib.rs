@@ -22,15 +22,16 @@ mod instance;
 mod kdtree;
 mod prims;
 mod scene;
+mod simd;
 mod stats;
 
 pub use accel::{Accel, AccelKind, BuildConfig};
 pub use brute::{BoundedList, BruteForce};
-pub use bvh::{Bvh, Bvh4, BvhBuilder};
+pub use bvh::{Bvh, Bvh4, Bvh8, BvhBuilder};
 pub use grid::Grid;
 pub use instance::{Instance, Instances};
 pub use kdtree::KdTree;
-pub use prims::{PrimHit, Primitives, Shape, Shapes, Spheres, TriangleMesh, Triangles};
+pub use prims::{PrimHit, Primitives, Shape, Shapes, Spheres, TriangleMesh, Triangles, BLOCK};
 pub use raymesh_geometry::{Aabb, Ray, Vec3};
 pub use scene::{Hit, Scene, Surface};
 pub use stats::{AccelStats, CountStats, NoStats, RayCounter};

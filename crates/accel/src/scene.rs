@@ -1,7 +1,8 @@
 //! Primitives plus a structure: the lecture's Surface interface.
 
 use crate::{
-    Accel, AccelKind, AccelStats, BuildConfig, CountStats, NoStats, PrimHit, Primitives, RayCounter,
+    prims::BLOCK, Accel, AccelKind, AccelStats, BuildConfig, Bvh, Bvh4, Bvh8, CountStats, NoStats,
+    PrimHit, Primitives, RayCounter,
 };
 use raymesh_geometry::{Aabb, Ray, Vec3};
 use std::time::Instant;
@@ -81,6 +82,12 @@ impl<P: Primitives> Scene<P> {
                     original = Some(bvh.take_prim_ids());
                 }
             }
+            Accel::Bvh8(bvh) => {
+                if let Some(p) = prims.reordered(bvh.prim_ids()) {
+                    prims = p;
+                    original = Some(bvh.take_prim_ids());
+                }
+            }
             _ => {}
         }
         let build_ms = start.elapsed().as_secs_f64() * 1e3;
@@ -124,22 +131,63 @@ impl<P: Primitives> Scene<P> {
         }
     }
 
+    /// The BVH, when the primitives are stored in its leaf order: then a
+    /// leaf is a block of consecutive primitives, tested at once with
+    /// [`Primitives::intersect_block`].
+    fn wide_blocks(&self) -> Option<WideRef<'_>> {
+        self.original.as_ref()?;
+        match &self.accel {
+            Accel::Bvh(b, _) => Some(WideRef::W2(b)),
+            Accel::Bvh4(b) => Some(WideRef::W4(b)),
+            Accel::Bvh8(b) => Some(WideRef::W8(b)),
+            _ => None,
+        }
+    }
+
     /// Closest hit, counting nodes visited and primitives tested.
     pub fn intersect_counted<C: RayCounter>(&self, ray: &Ray, counter: &mut C) -> Option<Hit> {
         let mut best: Option<(u32, PrimHit)> = None;
         let mut tmax = ray.tmax();
-        self.accel.traverse(ray, counter, &mut |prim| {
-            if let Some(h) = self.prims.intersect(prim, ray, tmax) {
-                // Ties go to the least index the user gave.
-                if h.t < tmax
-                    || best.is_none_or(|(b, _)| self.original_index(prim) < self.original_index(b))
-                {
-                    tmax = h.t;
-                    best = Some((prim, h));
-                }
+        // Offers a hit with `t <= tmax`; ties go to the least index the user gave.
+        let mut offer = |prim: u32, h: PrimHit, tmax: &mut f32| {
+            if h.t < *tmax
+                || best.is_none_or(|(b, _)| self.original_index(prim) < self.original_index(b))
+            {
+                *tmax = h.t;
+                best = Some((prim, h));
             }
-            tmax
-        });
+        };
+        if let Some(wide) = self.wide_blocks() {
+            let mut block = |first: u32, count: u32| {
+                let end = first + count;
+                let mut start = first;
+                while start < end {
+                    let n = (end - start).min(BLOCK as u32);
+                    let mut hits = [PrimHit::default(); BLOCK];
+                    let mut mask = self.prims.intersect_block(start, n, ray, tmax, &mut hits);
+                    // Lanes in order, each against the bound the ones
+                    // before it left: what testing one by one gives.
+                    while mask != 0 {
+                        let k = mask.trailing_zeros();
+                        mask &= mask - 1;
+                        let h = hits[k as usize];
+                        if h.t <= tmax {
+                            offer(start + k, h, &mut tmax);
+                        }
+                    }
+                    start += n;
+                }
+                tmax
+            };
+            wide.traverse_blocks(ray, counter, &mut block);
+        } else {
+            self.accel.traverse(ray, counter, &mut |prim| {
+                if let Some(h) = self.prims.intersect(prim, ray, tmax) {
+                    offer(prim, h, &mut tmax);
+                }
+                tmax
+            });
+        }
         best.map(|(prim, h)| self.hit(prim, ray, h))
     }
 
@@ -156,18 +204,40 @@ impl<P: Primitives> Scene<P> {
     /// [`Self::any_hit`], counting nodes visited and primitives tested.
     pub fn any_hit_counted<C: RayCounter>(&self, ray: &Ray, counter: &mut C) -> Option<Hit> {
         let mut found: Option<(u32, PrimHit)> = None;
-        self.accel
-            .traverse(
-                ray,
-                counter,
-                &mut |prim| match self.prims.intersect(prim, ray, ray.tmax()) {
+        if let Some(wide) = self.wide_blocks() {
+            let mut block = |first: u32, count: u32| {
+                let end = first + count;
+                let mut start = first;
+                while start < end {
+                    let n = (end - start).min(BLOCK as u32);
+                    let mut hits = [PrimHit::default(); BLOCK];
+                    let mask = self
+                        .prims
+                        .intersect_block(start, n, ray, ray.tmax(), &mut hits);
+                    if mask != 0 {
+                        let k = mask.trailing_zeros();
+                        found = Some((start + k, hits[k as usize]));
+                        return f32::NEG_INFINITY;
+                    }
+                    start += n;
+                }
+                ray.tmax()
+            };
+            wide.traverse_blocks(ray, counter, &mut block);
+        } else {
+            self.accel
+                .traverse(ray, counter, &mut |prim| match self.prims.intersect(
+                    prim,
+                    ray,
+                    ray.tmax(),
+                ) {
                     Some(h) => {
                         found = Some((prim, h));
                         f32::NEG_INFINITY
                     }
                     None => ray.tmax(),
-                },
-            );
+                });
+        }
         found.map(|(prim, h)| self.hit(prim, ray, h))
     }
 
@@ -203,5 +273,31 @@ impl<P: Primitives> Surface for Scene<P> {
     }
     fn intersect_count(&self, ray: &Ray, stats: &mut CountStats) -> Option<Hit> {
         self.intersect_counted(ray, stats)
+    }
+}
+
+/// A BVH of any width, for the block traversal.
+enum WideRef<'a> {
+    W2(&'a Bvh),
+    W4(&'a Bvh4),
+    W8(&'a Bvh8),
+}
+
+impl WideRef<'_> {
+    #[inline(always)]
+    fn traverse_blocks<C: RayCounter>(
+        &self,
+        ray: &Ray,
+        counter: &mut C,
+        block: &mut impl FnMut(u32, u32) -> f32,
+    ) {
+        if !ray.is_valid() {
+            return;
+        }
+        match self {
+            Self::W2(b) => b.traverse_blocks(ray, counter, block),
+            Self::W4(b) => b.traverse_blocks(ray, counter, block),
+            Self::W8(b) => b.traverse_blocks(ray, counter, block),
+        }
     }
 }

@@ -8,12 +8,13 @@ use raymesh_accel::*;
 use raymesh_geometry::{Mat4, Sphere};
 use std::path::PathBuf;
 
-const KINDS: [AccelKind; 7] = [
+const KINDS: [AccelKind; 8] = [
     AccelKind::Aabb,
     AccelKind::BvhMedian,
     AccelKind::BvhBinned,
     AccelKind::BvhSweep,
     AccelKind::Bvh4,
+    AccelKind::Bvh8,
     AccelKind::Grid,
     AccelKind::KdTree,
 ];
@@ -58,6 +59,20 @@ fn check_all<P: Primitives + Clone>(prims: &P, rays: &[Ray]) -> usize {
         }
     }
     want.iter().filter(|w| w.is_some()).count()
+}
+
+/// [`check_all`] on an indexed mesh and on its corner copy ([`Triangles`],
+/// whose wide-BVH leaves take the SIMD block test), and the two agree.
+fn check_mesh(m: &TriangleMesh, rays: &[Ray]) -> usize {
+    let tris = Triangles::from_mesh(m);
+    let a = Scene::build(m.clone(), AccelKind::Brute);
+    let b = Scene::build(tris.clone(), AccelKind::Brute);
+    for r in rays {
+        assert_eq!(key(a.intersect(r)), key(b.intersect(r)), "{r:?}");
+    }
+    let hits = check_all(m, rays);
+    assert_eq!(check_all(&tris, rays), hits);
+    hits
 }
 
 fn tri_mesh(tris: &[[Vec3; 3]]) -> TriangleMesh {
@@ -129,7 +144,7 @@ proptest! {
                              dirs in proptest::collection::vec(direction(), 24)) {
         let tris: Vec<[Vec3; 3]> = tris.into_iter().map(|(a, b, c)| [a, b, c]).collect();
         let rays = rays_for(&tris, &origins, &dirs);
-        check_all(&tri_mesh(&tris), &rays);
+        check_mesh(&tri_mesh(&tris), &rays);
     }
 
     #[test]
@@ -216,7 +231,7 @@ fn real_meshes() {
     ] {
         let m = load(name);
         let rays = mesh_rays(&m, 300, 7);
-        let hits = check_all(&m, &rays);
+        let hits = check_mesh(&m, &rays);
         assert!(
             hits > rays.len() / 10,
             "{name}: only {hits} of {} rays hit",
@@ -247,8 +262,8 @@ fn hard_cases() {
 
     let unit = [Vec3::ZERO, Vec3::X, Vec3::Y];
     // None; one; duplicates; all in one plane; degenerate; huge; tiny.
-    assert_eq!(check_all(&tri_mesh(&[]), &rays), 0);
-    assert!(check_all(&tri_mesh(&[unit]), &rays) > 0);
+    assert_eq!(check_mesh(&tri_mesh(&[]), &rays), 0);
+    assert!(check_mesh(&tri_mesh(&[unit]), &rays) > 0);
     assert!(
         check_all(
             &tri_mesh(&[unit, unit, unit, [Vec3::X, Vec3::Y, Vec3::ZERO]]),
@@ -276,9 +291,9 @@ fn hard_cases() {
             -Vec3::Z,
         ));
     }
-    assert!(check_all(&tri_mesh(&plane), &plane_rays) > 0);
+    assert!(check_mesh(&tri_mesh(&plane), &plane_rays) > 0);
     let degenerate = [[Vec3::ZERO, Vec3::X, Vec3::X * 2.0], [Vec3::ONE; 3], unit];
-    check_all(&tri_mesh(&degenerate), &rays);
+    check_mesh(&tri_mesh(&degenerate), &rays);
     for scale in [1e30f32, 1e-30, 1e12, 1e-12] {
         let tris: Vec<[Vec3; 3]> = plane
             .iter()
@@ -294,7 +309,7 @@ fn hard_cases() {
                 Ray::infinite(p, Vec3::Z)
             })
             .collect();
-        check_all(&tri_mesh(&tris), &rs);
+        check_mesh(&tri_mesh(&tris), &rs);
     }
     // Rays starting exactly on split planes and cell boundaries: lattice origins.
     let grid_tris: Vec<[Vec3; 3]> = (0..64)
@@ -318,7 +333,7 @@ fn hard_cases() {
             lattice_rays.push(Ray::infinite(p, d));
         }
     }
-    assert!(check_all(&tri_mesh(&grid_tris), &lattice_rays) > 0);
+    assert!(check_mesh(&tri_mesh(&grid_tris), &lattice_rays) > 0);
 }
 
 #[test]

@@ -135,9 +135,12 @@ impl Ray {
         self.origin + t * self.dir
     }
 
-    /// Shear constants of the watertight triangle test.
+    /// Shear constants `(dx/dz, dy/dz, 1/dz)` and axis permutation
+    /// `(kx, ky, kz)` of the watertight triangle test, for batched versions
+    /// of [`crate::intersect_triangle`] that must compute the same values.
     #[inline]
-    pub(crate) fn shear(&self) -> (Vec3, [usize; 3]) {
+    #[must_use]
+    pub fn shear(&self) -> (Vec3, [usize; 3]) {
         (
             self.shear,
             [self.k[0] as usize, self.k[1] as usize, self.k[2] as usize],

@@ -9,7 +9,10 @@ mod build;
 mod wide;
 
 pub use build::BvhBuilder;
-pub use wide::{Bvh4, Node4};
+#[cfg(test)]
+pub(crate) use wide::slab_scalar;
+pub(crate) use wide::BoxRay;
+pub use wide::{Bvh4, Bvh8, Node4, Node8, WideBvh, WideNode};
 
 use crate::{AccelStats, Leaf, RayCounter};
 use raymesh_geometry::{cull_bound, Aabb, Ray, Vec3};
@@ -215,9 +218,34 @@ impl Bvh {
         }
     }
 
-    /// Closest-first traversal (any-hit too: the leaf returns `-inf` to stop).
+    /// Closest-first traversal (any-hit too: the leaf returns `-inf` to
+    /// stop), calling `leaf` per primitive.
     #[inline]
     pub(crate) fn traverse<C: RayCounter>(&self, ray: &Ray, counter: &mut C, leaf: &mut impl Leaf) {
+        let ids = &self.prim_ids;
+        self.traverse_blocks(ray, counter, &mut |first, count| {
+            let mut tmax = ray.tmax();
+            for p in first..first + count {
+                let id = if ids.is_empty() { p } else { ids[p as usize] };
+                tmax = leaf(id);
+                if tmax < ray.tmin() {
+                    break;
+                }
+            }
+            tmax
+        });
+    }
+
+    /// Closest-first traversal calling `block(first, count)` for each leaf
+    /// reached, with its slots in the primitive permutation; it returns the
+    /// ray's new upper bound (`-inf` stops).
+    #[inline]
+    pub(crate) fn traverse_blocks<C: RayCounter>(
+        &self,
+        ray: &Ray,
+        counter: &mut C,
+        block: &mut impl FnMut(u32, u32) -> f32,
+    ) {
         let Some(root) = self.pairs.first().map(|p| &p.0[0]) else {
             return;
         };
@@ -233,23 +261,12 @@ impl Bvh {
         loop {
             counter.node();
             if node.is_leaf() {
-                let range = node.index..node.index + node.count;
-                if self.prim_ids.is_empty() {
-                    for p in range {
-                        counter.prim();
-                        tmax = leaf(p);
-                        if tmax < tmin {
-                            return;
-                        }
-                    }
-                } else {
-                    for &p in &self.prim_ids[range.start as usize..range.end as usize] {
-                        counter.prim();
-                        tmax = leaf(p);
-                        if tmax < tmin {
-                            return;
-                        }
-                    }
+                for _ in 0..node.count {
+                    counter.prim();
+                }
+                tmax = block(node.index, node.count);
+                if tmax < tmin {
+                    return;
                 }
             } else {
                 let pair = &self.pairs[(node.index >> 1) as usize].0;

@@ -1,42 +1,73 @@
-//! A 4-wide BVH collapsed from a binary one: each node holds its four
-//! children's boxes as structure-of-arrays (two cache lines), so one node
-//! visit tests four boxes in loops the compiler vectorizes, and a ray makes
-//! about half as many dependent memory reads as in the binary tree (Wald,
-//! Benthin & Boulos, "Getting rid of packets", 2008; Dammertz et al.,
-//! "Shallow bounding volume hierarchies", 2008).
+//! Wide BVHs collapsed from a binary one: each node holds its `W`
+//! children's boxes as structure-of-arrays (whole cache lines), so one node
+//! visit tests `W` boxes together, and a ray makes far fewer dependent
+//! memory reads than in the binary tree (Wald, Benthin & Boulos, "Getting
+//! rid of packets", 2008; Dammertz et al., "Shallow bounding volume
+//! hierarchies", 2008). `Bvh4` tests its boxes in plain loops the compiler
+//! vectorizes; `Bvh8` uses the AVX kernel of [`super::simd`] where the CPU
+//! has AVX2, and the same plain loops elsewhere.
 
-use super::{Bvh, STACK_SIZE};
+use super::Bvh;
+use crate::simd;
 use crate::{AccelStats, Leaf, RayCounter};
 use raymesh_geometry::{
     cull_bound, max_nan_second as max_ns, min_nan_second as min_ns, Aabb, Ray, Vec3, ROBUST_EXIT,
 };
 
-/// Children per node.
-const WIDTH: usize = 4;
-
-/// Four children: boxes by axis and lane, and for each child either a node
+/// `W` children: boxes by axis and lane, and for each child either a node
 /// index (`count == 0`) or a leaf's first primitive slot and count. An
-/// empty slot has an empty box (`min = +inf`, `max = -inf`), which no ray hits.
+/// empty slot has an empty box (`min = +inf`, `max = -inf`), which no ray
+/// hits. 128 bytes for `W = 4`, 256 for `W = 8`: whole cache lines.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[repr(C, align(64))]
-pub struct Node4 {
-    min: [[f32; WIDTH]; 3],
-    max: [[f32; WIDTH]; 3],
-    child: [u32; WIDTH],
-    count: [u32; WIDTH],
+pub struct WideNode<const W: usize> {
+    min: [[f32; W]; 3],
+    max: [[f32; W]; 3],
+    child: [u32; W],
+    count: [u32; W],
 }
 
-const _: () = assert!(std::mem::size_of::<Node4>() == 128);
+/// A node of [`Bvh4`].
+pub type Node4 = WideNode<4>;
+/// A node of [`Bvh8`].
+pub type Node8 = WideNode<8>;
 
-impl Node4 {
+const _: () = assert!(std::mem::size_of::<Node4>() == 128);
+const _: () = assert!(std::mem::size_of::<Node8>() == 256);
+
+impl<const W: usize> WideNode<W> {
     const EMPTY: Self = Self {
-        min: [[f32::INFINITY; WIDTH]; 3],
-        max: [[f32::NEG_INFINITY; WIDTH]; 3],
-        child: [u32::MAX; WIDTH],
-        count: [0; WIDTH],
+        min: [[f32::INFINITY; W]; 3],
+        max: [[f32::NEG_INFINITY; W]; 3],
+        child: [u32::MAX; W],
+        count: [0; W],
     };
 
-    fn set_box(&mut self, i: usize, b: Aabb) {
+    /// A node with every slot empty.
+    #[cfg(test)]
+    pub(crate) fn empty() -> Self {
+        Self::EMPTY
+    }
+
+    /// Pointers to the three rows of lower bounds (x, y, z), `W` floats each.
+    pub(crate) fn min_rows(&self) -> [*const f32; 3] {
+        [
+            self.min[0].as_ptr(),
+            self.min[1].as_ptr(),
+            self.min[2].as_ptr(),
+        ]
+    }
+
+    /// Pointers to the three rows of upper bounds (x, y, z), `W` floats each.
+    pub(crate) fn max_rows(&self) -> [*const f32; 3] {
+        [
+            self.max[0].as_ptr(),
+            self.max[1].as_ptr(),
+            self.max[2].as_ptr(),
+        ]
+    }
+
+    pub(crate) fn set_box(&mut self, i: usize, b: Aabb) {
         for a in 0..3 {
             self.min[a][i] = b.min[a];
             self.max[a][i] = b.max[a];
@@ -55,18 +86,24 @@ impl Node4 {
     }
 }
 
-/// A 4-wide BVH sharing its binary source's leaves and permutation.
+/// A `W`-wide BVH sharing its binary source's leaves and permutation.
 #[derive(Clone, Debug, Default)]
-pub struct Bvh4 {
-    nodes: Vec<Node4>,
+pub struct WideBvh<const W: usize> {
+    nodes: Vec<WideNode<W>>,
     prim_ids: Vec<u32>,
     bounds: Aabb,
 }
 
-impl Bvh4 {
+/// 4-wide BVH: four boxes per node, tested together.
+pub type Bvh4 = WideBvh<4>;
+/// 8-wide BVH: eight boxes per node, tested with one AVX instruction per
+/// step where the CPU has AVX2 (see [`super::simd`]).
+pub type Bvh8 = WideBvh<8>;
+
+impl<const W: usize> WideBvh<W> {
     /// Collapses a binary BVH: each node takes the two children of its
     /// binary node and keeps opening its largest inner child (by surface
-    /// area) until it has four.
+    /// area) until it has `W`.
     #[must_use]
     pub fn from_binary(bin: Bvh) -> Self {
         let nodes2 = bin.nodes();
@@ -80,7 +117,7 @@ impl Bvh4 {
             return out;
         }
         if nodes2[0].is_leaf() {
-            let mut n = Node4::EMPTY;
+            let mut n = WideNode::<W>::EMPTY;
             n.set_box(0, nodes2[0].bounds());
             n.child[0] = nodes2[0].index;
             n.count[0] = nodes2[0].count;
@@ -93,10 +130,10 @@ impl Bvh4 {
 
     fn collapse(&mut self, nodes2: &[super::Node], at: usize) -> u32 {
         let me = self.nodes.len();
-        self.nodes.push(Node4::EMPTY);
+        self.nodes.push(WideNode::<W>::EMPTY);
         let first = nodes2[at].index as usize;
         let mut kids = vec![first, first + 1];
-        while kids.len() < WIDTH {
+        while kids.len() < W {
             let open = kids
                 .iter()
                 .enumerate()
@@ -112,7 +149,7 @@ impl Bvh4 {
             kids[i] = c;
             kids.push(c + 1);
         }
-        let mut node = Node4::EMPTY;
+        let mut node = WideNode::<W>::EMPTY;
         for (i, &k) in kids.iter().enumerate() {
             let n = &nodes2[k];
             node.set_box(i, n.bounds());
@@ -162,7 +199,7 @@ impl Bvh4 {
         };
         while let Some((i, d)) = stack.pop() {
             let n = &self.nodes[i];
-            for k in (0..WIDTH).filter(|&k| n.is_used(k)) {
+            for k in (0..W).filter(|&k| n.is_used(k)) {
                 if n.count[k] > 0 {
                     leaves += 1;
                     depth = depth.max(d);
@@ -177,86 +214,249 @@ impl Bvh4 {
             nodes: self.nodes.len(),
             leaves,
             depth,
-            bytes: self.nodes.len() * std::mem::size_of::<Node4>() + self.prim_ids.len() * 4,
+            bytes: self.nodes.len() * std::mem::size_of::<WideNode<W>>() + self.prim_ids.len() * 4,
             sah_cost: sah,
             ..AccelStats::default()
         }
     }
 
-    /// Front-to-back traversal: the children a ray enters are pushed
-    /// farthest first, so the nearest comes off the stack next.
+    /// Front-to-back traversal calling `leaf` per primitive (see
+    /// [`Self::traverse_blocks`]).
     #[inline]
     pub(crate) fn traverse<C: RayCounter>(&self, ray: &Ray, counter: &mut C, leaf: &mut impl Leaf) {
+        let ids = &self.prim_ids;
+        self.traverse_blocks(ray, counter, &mut |first, count| {
+            let mut tmax = ray.tmax();
+            for p in first..first + count {
+                let id = if ids.is_empty() { p } else { ids[p as usize] };
+                tmax = leaf(id);
+                if tmax < ray.tmin() {
+                    break;
+                }
+            }
+            tmax
+        });
+    }
+
+    /// Front-to-back traversal: the children a ray enters are pushed
+    /// farthest first, so the nearest comes off the stack next. Each leaf
+    /// reached calls `block(first, count)` with its slots in the primitive
+    /// permutation, which returns the ray's new upper bound (`-inf` stops).
+    /// Uses the AVX2 kernel for 8-wide nodes when the CPU has it.
+    #[inline]
+    pub(crate) fn traverse_blocks<C: RayCounter>(
+        &self,
+        ray: &Ray,
+        counter: &mut C,
+        block: &mut impl FnMut(u32, u32) -> f32,
+    ) {
         if self.nodes.is_empty() {
             return;
         }
-        let (o, inv, oct, tmin) = (ray.origin(), ray.inv_dir(), ray.octant(), ray.tmin());
+        #[cfg(target_arch = "x86_64")]
+        if W == 8 && simd::has_avx2() {
+            return simd::with_avx2(|| {
+                self.traverse_with(ray, counter, block, |i, r, bound, t| {
+                    simd::slab8(&self.nodes[i], r, bound, t)
+                })
+            });
+        }
+        self.traverse_with(ray, counter, block, |i, r, bound, t| {
+            slab_scalar(&self.nodes[i], r, bound, t)
+        });
+    }
+
+    /// The traversal loop, generic over the node test (`test(node, ray,
+    /// bound, entries) -> hit mask`).
+    #[inline(always)]
+    fn traverse_with<C: RayCounter>(
+        &self,
+        ray: &Ray,
+        counter: &mut C,
+        block: &mut impl FnMut(u32, u32) -> f32,
+        test: impl Fn(usize, &BoxRay, f32, &mut [f32; W]) -> u32,
+    ) {
+        let r = BoxRay::new(ray);
+        let tmin = ray.tmin();
         let mut tmax = ray.tmax();
-        // (child, count, entry): count 0 is a node.
-        let mut stack = [(0u32, 0u32, 0.0f32); 3 * STACK_SIZE];
-        let mut sp = 1usize;
-        stack[0] = (0, 0, tmin);
-        while sp > 0 {
-            sp -= 1;
-            let (child, count, entry) = stack[sp];
-            if entry > cull_bound(tmax) {
+        let mut stack = Stack::new();
+        stack.push(Entry {
+            child: 0,
+            count: 0,
+            entry: tmin,
+        });
+        while let Some(e) = stack.pop() {
+            if e.entry > cull_bound(tmax) {
                 continue;
             }
-            if count > 0 {
-                for p in child..child + count {
+            if e.count > 0 {
+                for _ in 0..e.count {
                     counter.prim();
-                    let id = if self.prim_ids.is_empty() {
-                        p
-                    } else {
-                        self.prim_ids[p as usize]
-                    };
-                    tmax = leaf(id);
-                    if tmax < tmin {
-                        return;
-                    }
+                }
+                tmax = block(e.child, e.count);
+                if tmax < tmin {
+                    return;
                 }
                 continue;
             }
             counter.node();
-            let n = &self.nodes[child as usize];
-            let bound = cull_bound(tmax);
-            let mut t0 = [0.0f32; WIDTH];
-            let mut hit = [false; WIDTH];
-            let (mut lo, mut hi) = ([[0.0f32; WIDTH]; 3], [[0.0f32; WIDTH]; 3]);
-            for a in 0..3 {
-                let neg = oct >> a & 1 != 0;
-                let (near, far) = if neg {
-                    (&n.max[a], &n.min[a])
-                } else {
-                    (&n.min[a], &n.max[a])
+            let i = e.child as usize;
+            let mut t = [0.0f32; W];
+            let mut mask = test(i, &r, cull_bound(tmax), &mut t);
+            let n = &self.nodes[i];
+            if mask & mask.wrapping_sub(1) == 0 {
+                // At most one child entered: no sorting.
+                if mask != 0 {
+                    let k = mask.trailing_zeros() as usize;
+                    stack.push(Entry {
+                        child: n.child[k],
+                        count: n.count[k],
+                        entry: t[k],
+                    });
+                }
+                continue;
+            }
+            // Sort the entered children by entry, farthest first, then push.
+            let mut hits = [Entry::NONE; W];
+            let mut h = 0;
+            while mask != 0 {
+                let k = mask.trailing_zeros() as usize;
+                mask &= mask - 1;
+                let item = Entry {
+                    child: n.child[k],
+                    count: n.count[k],
+                    entry: t[k],
                 };
-                for i in 0..WIDTH {
-                    lo[a][i] = (near[i] - o[a]) * inv[a];
-                    hi[a][i] = (far[i] - o[a]) * inv[a] * ROBUST_EXIT;
-                }
-            }
-            for i in 0..WIDTH {
-                // NaN-ignoring max/min: see Aabb::slab.
-                let e = max_ns(lo[0][i], max_ns(lo[1][i], max_ns(lo[2][i], tmin)));
-                let x = min_ns(hi[0][i], min_ns(hi[1][i], min_ns(hi[2][i], bound)));
-                t0[i] = e;
-                hit[i] = e <= x;
-            }
-            // Push entered children, farthest first (insertion by entry, at most 4).
-            let base = sp;
-            for i in 0..WIDTH {
-                if !hit[i] {
-                    continue;
-                }
-                let item = (n.child[i], n.count[i], t0[i]);
-                let mut j = sp;
-                while j > base && stack[j - 1].2 < item.2 {
-                    stack[j] = stack[j - 1];
+                let mut j = h;
+                while j > 0 && hits[j - 1].entry < item.entry {
+                    hits[j] = hits[j - 1];
                     j -= 1;
                 }
-                stack[j] = item;
-                sp += 1;
+                hits[j] = item;
+                h += 1;
+            }
+            for item in &hits[..h] {
+                stack.push(*item);
             }
         }
+    }
+}
+
+/// What a node test needs of a ray: origin, reciprocal direction, which
+/// axes run backwards (so the near plane is the box's max), and `tmin`.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct BoxRay {
+    pub(crate) origin: [f32; 3],
+    pub(crate) inv_dir: [f32; 3],
+    pub(crate) neg: [bool; 3],
+    pub(crate) tmin: f32,
+}
+
+impl BoxRay {
+    pub(crate) fn new(ray: &Ray) -> Self {
+        let oct = ray.octant();
+        Self {
+            origin: ray.origin().to_array(),
+            inv_dir: ray.inv_dir().to_array(),
+            neg: [oct & 1 != 0, oct & 2 != 0, oct & 4 != 0],
+            tmin: ray.tmin(),
+        }
+    }
+}
+
+/// The slab test of a node's `W` boxes in plain loops (the compiler
+/// vectorizes them for the target's baseline SIMD): writes each child's
+/// entry distance and returns a bit per child the ray enters before
+/// `bound`. The same arithmetic, in the same order, as [`Aabb::slab`] (and
+/// as the AVX kernel, which a test checks bit for bit).
+#[inline(always)]
+pub(crate) fn slab_scalar<const W: usize>(
+    n: &WideNode<W>,
+    r: &BoxRay,
+    bound: f32,
+    t: &mut [f32; W],
+) -> u32 {
+    let (mut lo, mut hi) = ([[0.0f32; W]; 3], [[0.0f32; W]; 3]);
+    for a in 0..3 {
+        let (near, far) = if r.neg[a] {
+            (&n.max[a], &n.min[a])
+        } else {
+            (&n.min[a], &n.max[a])
+        };
+        for i in 0..W {
+            lo[a][i] = (near[i] - r.origin[a]) * r.inv_dir[a];
+            hi[a][i] = (far[i] - r.origin[a]) * r.inv_dir[a] * ROBUST_EXIT;
+        }
+    }
+    let mut mask = 0u32;
+    for i in 0..W {
+        // NaN-ignoring max/min: see Aabb::slab.
+        let e = max_ns(lo[0][i], max_ns(lo[1][i], max_ns(lo[2][i], r.tmin)));
+        let x = min_ns(hi[0][i], min_ns(hi[1][i], min_ns(hi[2][i], bound)));
+        t[i] = e;
+        mask |= u32::from(e <= x) << i;
+    }
+    mask
+}
+
+/// A traversal stack item: a node (`count == 0`) or a leaf, and the ray's
+/// entry distance into its box.
+#[derive(Clone, Copy, Debug)]
+struct Entry {
+    child: u32,
+    count: u32,
+    entry: f32,
+}
+
+impl Entry {
+    const NONE: Self = Self {
+        child: 0,
+        count: 0,
+        entry: 0.0,
+    };
+}
+
+/// Items kept inline; a tree deep enough to need more (each level adds at
+/// most `W - 1`) spills to the heap instead of failing.
+const INLINE: usize = 64;
+
+/// A traversal stack: a small inline array (cheap to set up per ray) that
+/// spills to a `Vec` on degenerate trees, so no depth bound is needed.
+struct Stack {
+    items: [Entry; INLINE],
+    len: usize,
+    spill: Vec<Entry>,
+}
+
+impl Stack {
+    #[inline(always)]
+    fn new() -> Self {
+        Self {
+            items: [Entry::NONE; INLINE],
+            len: 0,
+            spill: Vec::new(),
+        }
+    }
+
+    #[inline(always)]
+    fn push(&mut self, e: Entry) {
+        if self.len < INLINE {
+            self.items[self.len] = e;
+            self.len += 1;
+        } else {
+            self.spill.push(e);
+        }
+    }
+
+    #[inline(always)]
+    fn pop(&mut self) -> Option<Entry> {
+        if !self.spill.is_empty() {
+            return self.spill.pop();
+        }
+        if self.len == 0 {
+            return None;
+        }
+        self.len -= 1;
+        Some(self.items[self.len])
     }
 }

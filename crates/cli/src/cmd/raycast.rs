@@ -2,7 +2,9 @@
 
 use crate::npy::{self, HitRecord};
 use anyhow::{Context, Result};
-use raymesh_accel::{AccelKind, CountStats, Ray, Scene, Surface, TriangleMesh, Triangles};
+use raymesh_accel::{
+    AccelKind, CountStats, Primitives, Ray, Scene, Surface, TriangleMesh, Triangles,
+};
 use raymesh_mesh::io::read_mesh;
 use rayon::prelude::*;
 use serde::Serialize;
@@ -116,7 +118,7 @@ pub fn run(args: &Args) -> Result<()> {
     let mesh = read_mesh(&args.mesh)?;
     let rays = npy::read_rays(&args.rays)?;
     let tris = Triangles::from_mesh(&TriangleMesh::new(mesh.positions.clone(), mesh.triangles()));
-    let ntri = tris.0.len();
+    let ntri = tris.len();
     let copy_bytes = tris.bytes();
     let scene = pool.install(|| Scene::build(tris, args.accel));
     let mut stats = scene.stats();

@@ -1,0 +1,354 @@
+//! SIMD kernels (wide BVH nodes, triangle blocks), chosen at run time.
+//!
+//! The only `unsafe` of the crate lives here: calls to `std::arch`
+//! intrinsics, each behind a check that the CPU has the instructions.
+//! Every kernel has a safe fallback in plain Rust (the caller's loops, which
+//! the compiler vectorizes for the target's baseline), and a test below
+//! compares the two bit for bit on random and degenerate input. The
+//! kernels perform the same IEEE operations in the same order as the
+//! fallback, without fused multiply-adds, so their results are identical.
+#![allow(unsafe_code)]
+
+use crate::bvh::{BoxRay, WideNode};
+use crate::PrimHit;
+use raymesh_geometry::Ray;
+
+/// Whether this CPU has AVX2 (detected once, then a cached load).
+#[inline(always)]
+#[must_use]
+pub(crate) fn has_avx2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::is_x86_feature_detected!("avx2")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// Runs `f` compiled with AVX2 enabled, so that the kernels it inlines use
+/// 256-bit instructions. Panics if the CPU lacks AVX2 (callers check
+/// [`has_avx2`] first; the check here keeps this function safe).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) fn with_avx2<R>(f: impl FnOnce() -> R) -> R {
+    assert!(has_avx2(), "with_avx2 called on a CPU without AVX2");
+    // SAFETY: the CPU supports AVX2, checked just above.
+    unsafe { run_avx2(f) }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn run_avx2<R>(f: impl FnOnce() -> R) -> R {
+    f()
+}
+
+/// The slab test of an 8-wide node's boxes in AVX: the same result as
+/// [`crate::bvh::slab_scalar`] (entry distances in `t`, a bit per child
+/// entered before `bound`). Panics unless `W == 8` or without AVX2.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) fn slab8<const W: usize>(
+    n: &WideNode<W>,
+    r: &BoxRay,
+    bound: f32,
+    t: &mut [f32; W],
+) -> u32 {
+    assert!(W == 8);
+    debug_assert!(has_avx2());
+    // SAFETY: every array read or written holds W == 8 floats, and the
+    // callers run this only on CPUs with AVX2 (inside `with_avx2`).
+    unsafe { slab8_avx(n.min_rows(), n.max_rows(), r, bound, t.as_mut_ptr()) }
+}
+
+/// # Safety
+/// The CPU must have AVX; `min` and `max` rows and `t` must hold 8 floats.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn slab8_avx(
+    min: [*const f32; 3],
+    max: [*const f32; 3],
+    r: &BoxRay,
+    bound: f32,
+    t: *mut f32,
+) -> u32 {
+    use std::arch::x86_64::*;
+    let exit_pad = _mm256_set1_ps(raymesh_geometry::ROBUST_EXIT);
+    let mut lo = [_mm256_setzero_ps(); 3];
+    let mut hi = [_mm256_setzero_ps(); 3];
+    for a in 0..3 {
+        let (near, far) = if r.neg[a] {
+            (max[a], min[a])
+        } else {
+            (min[a], max[a])
+        };
+        let o = _mm256_set1_ps(r.origin[a]);
+        let inv = _mm256_set1_ps(r.inv_dir[a]);
+        lo[a] = _mm256_mul_ps(_mm256_sub_ps(_mm256_loadu_ps(near), o), inv);
+        hi[a] = _mm256_mul_ps(
+            _mm256_mul_ps(_mm256_sub_ps(_mm256_loadu_ps(far), o), inv),
+            exit_pad,
+        );
+    }
+    // `max_ps(a, b)` is `a > b ? a : b`, returning `b` when either is NaN:
+    // exactly `max_nan_second(a, b)`, nested in the fallback's order.
+    let e = _mm256_max_ps(
+        lo[0],
+        _mm256_max_ps(lo[1], _mm256_max_ps(lo[2], _mm256_set1_ps(r.tmin))),
+    );
+    let x = _mm256_min_ps(
+        hi[0],
+        _mm256_min_ps(hi[1], _mm256_min_ps(hi[2], _mm256_set1_ps(bound))),
+    );
+    _mm256_storeu_ps(t, e);
+    _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(e, x)) as u32
+}
+
+/// The watertight ray–triangle test of
+/// [`raymesh_geometry::intersect_triangle`] on up to 8 triangles at once,
+/// given as 9 rows (corner × axis) of at least 8 floats; lanes `count..`
+/// are ignored. Returns the mask of lanes hit (their `t`, `u`, `v` written
+/// to `out`) and the mask of lanes whose edge function rounded to exactly
+/// zero: those need the scalar test's f64 path, and are not in the hit mask.
+/// Panics if a row is short or the CPU lacks AVX2.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) fn triangles8(
+    rows: [&[f32]; 9],
+    count: usize,
+    ray: &Ray,
+    tmax: f32,
+    out: &mut [PrimHit; 8],
+) -> (u32, u32) {
+    assert!(rows.iter().all(|r| r.len() >= 8));
+    assert!(has_avx2());
+    let active = if count >= 8 {
+        0xff
+    } else {
+        (1u32 << count) - 1
+    };
+    let (mut t, mut u, mut v) = ([0.0f32; 8], [0.0f32; 8], [0.0f32; 8]);
+    // SAFETY: each row holds at least 8 floats (asserted), the outputs are
+    // 8 floats, and the CPU has AVX2 (asserted).
+    let (hit, redo) = unsafe {
+        triangles8_avx(
+            rows.map(<[f32]>::as_ptr),
+            ray,
+            tmax,
+            [t.as_mut_ptr(), u.as_mut_ptr(), v.as_mut_ptr()],
+        )
+    };
+    let (hit, redo) = (hit & active, redo & active);
+    let mut m = hit;
+    while m != 0 {
+        let k = m.trailing_zeros() as usize;
+        m &= m - 1;
+        out[k] = PrimHit {
+            t: t[k],
+            u: u[k],
+            v: v[k],
+        };
+    }
+    (hit & !redo, redo)
+}
+
+/// # Safety
+/// The CPU must have AVX; each row pointer must address 8 readable floats
+/// and each output pointer 8 writable ones.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn triangles8_avx(
+    rows: [*const f32; 9],
+    ray: &Ray,
+    tmax: f32,
+    out: [*mut f32; 3],
+) -> (u32, u32) {
+    use std::arch::x86_64::*;
+    let (s, [kx, ky, kz]) = ray.shear();
+    let o = ray.origin();
+    let (sx, sy, sz) = (
+        _mm256_set1_ps(s.x),
+        _mm256_set1_ps(s.y),
+        _mm256_set1_ps(s.z),
+    );
+    let (ox, oy, oz) = (
+        _mm256_set1_ps(o[kx]),
+        _mm256_set1_ps(o[ky]),
+        _mm256_set1_ps(o[kz]),
+    );
+    // Corner `c` relative to the ray origin and sheared to 2D, in the
+    // scalar test's order of operations (a macro, not a closure, so that
+    // the intrinsics inline into this AVX2 function).
+    macro_rules! shear {
+        ($c:expr) => {{
+            let x = _mm256_sub_ps(_mm256_loadu_ps(rows[3 * $c + kx]), ox);
+            let y = _mm256_sub_ps(_mm256_loadu_ps(rows[3 * $c + ky]), oy);
+            let z = _mm256_sub_ps(_mm256_loadu_ps(rows[3 * $c + kz]), oz);
+            (
+                _mm256_sub_ps(x, _mm256_mul_ps(sx, z)),
+                _mm256_sub_ps(y, _mm256_mul_ps(sy, z)),
+                _mm256_mul_ps(sz, z),
+            )
+        }};
+    }
+    let (ax, ay, az) = shear!(0);
+    let (bx, by, bz) = shear!(1);
+    let (cx, cy, cz) = shear!(2);
+    let u = _mm256_sub_ps(_mm256_mul_ps(cx, by), _mm256_mul_ps(cy, bx));
+    let v = _mm256_sub_ps(_mm256_mul_ps(ax, cy), _mm256_mul_ps(ay, cx));
+    let w = _mm256_sub_ps(_mm256_mul_ps(bx, ay), _mm256_mul_ps(by, ax));
+    let zero = _mm256_setzero_ps();
+    let redo = _mm256_or_ps(
+        _mm256_cmp_ps::<_CMP_EQ_OQ>(u, zero),
+        _mm256_or_ps(
+            _mm256_cmp_ps::<_CMP_EQ_OQ>(v, zero),
+            _mm256_cmp_ps::<_CMP_EQ_OQ>(w, zero),
+        ),
+    );
+    let any_neg = _mm256_or_ps(
+        _mm256_cmp_ps::<_CMP_LT_OQ>(u, zero),
+        _mm256_or_ps(
+            _mm256_cmp_ps::<_CMP_LT_OQ>(v, zero),
+            _mm256_cmp_ps::<_CMP_LT_OQ>(w, zero),
+        ),
+    );
+    let any_pos = _mm256_or_ps(
+        _mm256_cmp_ps::<_CMP_GT_OQ>(u, zero),
+        _mm256_or_ps(
+            _mm256_cmp_ps::<_CMP_GT_OQ>(v, zero),
+            _mm256_cmp_ps::<_CMP_GT_OQ>(w, zero),
+        ),
+    );
+    let det = _mm256_add_ps(_mm256_add_ps(u, v), w);
+    let t_scaled = _mm256_add_ps(
+        _mm256_add_ps(_mm256_mul_ps(u, az), _mm256_mul_ps(v, bz)),
+        _mm256_mul_ps(w, cz),
+    );
+    let inv_det = _mm256_div_ps(_mm256_set1_ps(1.0), det);
+    let t = _mm256_mul_ps(t_scaled, inv_det);
+    // Inside (all edge functions of one sign), a plane that is not edge-on
+    // (`det` neither 0 nor NaN), and `t` in the interval (NaN fails).
+    let ok = _mm256_andnot_ps(
+        _mm256_and_ps(any_neg, any_pos),
+        _mm256_and_ps(
+            _mm256_cmp_ps::<_CMP_NEQ_OQ>(det, zero),
+            _mm256_and_ps(
+                _mm256_cmp_ps::<_CMP_GE_OQ>(t, _mm256_set1_ps(ray.tmin())),
+                _mm256_cmp_ps::<_CMP_LE_OQ>(t, _mm256_set1_ps(tmax)),
+            ),
+        ),
+    );
+    _mm256_storeu_ps(out[0], t);
+    _mm256_storeu_ps(out[1], _mm256_mul_ps(v, inv_det));
+    _mm256_storeu_ps(out[2], _mm256_mul_ps(w, inv_det));
+    (
+        _mm256_movemask_ps(ok) as u32,
+        _mm256_movemask_ps(redo) as u32,
+    )
+}
+
+#[cfg(all(test, target_arch = "x86_64"))]
+mod tests {
+    use super::*;
+    use crate::bvh::slab_scalar;
+    use proptest::prelude::*;
+    use raymesh_geometry::{Aabb, Ray, Vec3};
+
+    /// Coordinates that include the hard cases: zeros of both signs,
+    /// infinities, NaN, huge and tiny values.
+    fn coord() -> impl Strategy<Value = f32> {
+        prop_oneof![
+            6 => -8.0f32..8.0,
+            1 => Just(0.0f32),
+            1 => Just(-0.0f32),
+            1 => Just(f32::INFINITY),
+            1 => Just(f32::NEG_INFINITY),
+            1 => Just(f32::NAN),
+            1 => Just(1e30f32),
+            1 => Just(-1e-30f32),
+            1 => (-2i32..3).prop_map(|i| i as f32),
+        ]
+    }
+
+    fn vec3() -> impl Strategy<Value = Vec3> {
+        (coord(), coord(), coord()).prop_map(|(x, y, z)| Vec3::new(x, y, z))
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(4000))]
+        /// The AVX kernel and the plain loops give the same bits.
+        #[test]
+        fn avx_slab_matches_fallback(
+            corners in proptest::collection::vec((vec3(), vec3()), 8),
+            used in 0u32..256,
+            o in vec3(), d in vec3(),
+            tmin in coord(), bound in coord(),
+        ) {
+            prop_assume!(has_avx2());
+            let mut node = WideNode::<8>::empty();
+            for (i, (a, b)) in corners.iter().enumerate() {
+                if used >> i & 1 != 0 {
+                    node.set_box(i, Aabb::new(a.min(*b), a.max(*b)));
+                }
+            }
+            let ray = Ray::new(o, d, tmin.min(0.0), f32::INFINITY);
+            let mut r = BoxRay::new(&ray);
+            r.tmin = tmin;
+            let (mut ta, mut tb) = ([0.0f32; 8], [0.0f32; 8]);
+            let ma = with_avx2(|| slab8(&node, &r, bound, &mut ta));
+            let mb = slab_scalar(&node, &r, bound, &mut tb);
+            prop_assert_eq!(ma, mb);
+            for i in 0..8 {
+                prop_assert_eq!(ta[i].to_bits(), tb[i].to_bits(), "lane {}", i);
+            }
+        }
+    }
+
+    /// Lattice coordinates make edge functions round to exactly zero
+    /// (rays through shared edges and vertices), which takes the f64 path.
+    fn lattice() -> impl Strategy<Value = Vec3> {
+        (-3i32..4, -3i32..4, -3i32..4)
+            .prop_map(|(x, y, z)| Vec3::new(x as f32, y as f32, z as f32) * 0.5)
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(4000))]
+        /// The AVX triangle block gives what the scalar test gives, lane by
+        /// lane: the same hits and the same bits of `t`, `u`, `v`.
+        #[test]
+        fn avx_triangles_match_scalar(
+            tris in proptest::collection::vec(
+                prop_oneof![(vec3(), vec3(), vec3()), (lattice(), lattice(), lattice())], 8),
+            count in 0usize..9,
+            o in prop_oneof![vec3(), lattice()], d in prop_oneof![vec3(), lattice()],
+            tmin in prop_oneof![Just(0.0f32), coord()], tmax in coord(),
+        ) {
+            prop_assume!(has_avx2());
+            let corners: Vec<[Vec3; 3]> = tris.iter().map(|&(a, b, c)| [a, b, c]).collect();
+            let tris = crate::Triangles::from_corners(&corners);
+            let ray = Ray::new(o, d, tmin, f32::INFINITY);
+            let mut out = [PrimHit::default(); 8];
+            let mask = crate::Primitives::intersect_block(&tris, 0, count as u32, &ray, tmax, &mut out);
+            for k in 0..8 {
+                let [a, b, c] = corners[k];
+                let want = if k < count {
+                    raymesh_geometry::intersect_triangle(&ray, tmax, a, b, c)
+                } else {
+                    None
+                };
+                prop_assert_eq!(mask >> k & 1 != 0, want.is_some(), "lane {}", k);
+                if let Some(w) = want {
+                    let h = out[k];
+                    prop_assert_eq!(
+                        (h.t.to_bits(), h.u.to_bits(), h.v.to_bits()),
+                        (w.t.to_bits(), w.u.to_bits(), w.v.to_bits()),
+                        "lane {}", k
+                    );
+                }
+            }
+        }
+    }
+}
