@@ -49,6 +49,8 @@ fn every_structure_writes_the_same_hits() {
             "bvh-median",
             "bvh-binned",
             "bvh-sweep",
+            "bvh4",
+            "bvh8",
             "bvh",
             "grid",
             "kdtree",
