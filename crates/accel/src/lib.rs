@@ -34,6 +34,7 @@ pub use kdtree::KdTree;
 pub use prims::{PrimHit, Primitives, Shape, Shapes, Spheres, TriangleMesh, Triangles, BLOCK};
 pub use raymesh_geometry::{Aabb, Ray, Vec3};
 pub use scene::{Hit, Scene, Surface};
+pub use simd::set_simd_enabled;
 pub use stats::{AccelStats, CountStats, NoStats, RayCounter};
 
 /// Leaf callback of a traversal: tests primitive `prim` and returns the

@@ -13,10 +13,31 @@ use crate::bvh::{BoxRay, WideNode};
 use crate::PrimHit;
 use raymesh_geometry::Ray;
 
-/// Whether this CPU has AVX2 (detected once, then a cached load).
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// Whether the SIMD kernels may be used (see [`set_simd_enabled`]).
+static SIMD_ENABLED: AtomicBool = AtomicBool::new(true);
+
+/// Turns the SIMD kernels on or off for the whole process (on by default;
+/// they are used only where the CPU supports them). Off, every structure
+/// runs its portable fallback, which gives bit-identical results: for
+/// measuring what the kernels buy, and for testing the fallbacks on
+/// machines that have the instructions.
+pub fn set_simd_enabled(on: bool) {
+    SIMD_ENABLED.store(on, Ordering::Relaxed);
+}
+
+/// Whether the SIMD kernels are enabled and this CPU has AVX2.
 #[inline(always)]
 #[must_use]
 pub(crate) fn has_avx2() -> bool {
+    SIMD_ENABLED.load(Ordering::Relaxed) && cpu_has_avx2()
+}
+
+/// Whether this CPU has AVX2 (detected once, then a cached load).
+#[inline(always)]
+#[must_use]
+fn cpu_has_avx2() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
         std::is_x86_feature_detected!("avx2")
@@ -33,7 +54,7 @@ pub(crate) fn has_avx2() -> bool {
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 pub(crate) fn with_avx2<R>(f: impl FnOnce() -> R) -> R {
-    assert!(has_avx2(), "with_avx2 called on a CPU without AVX2");
+    assert!(cpu_has_avx2(), "with_avx2 called on a CPU without AVX2");
     // SAFETY: the CPU supports AVX2, checked just above.
     unsafe { run_avx2(f) }
 }
@@ -56,7 +77,7 @@ pub(crate) fn slab8<const W: usize>(
     t: &mut [f32; W],
 ) -> u32 {
     assert!(W == 8);
-    debug_assert!(has_avx2());
+    debug_assert!(cpu_has_avx2());
     // SAFETY: every array read or written holds W == 8 floats, and the
     // callers run this only on CPUs with AVX2 (inside `with_avx2`).
     unsafe { slab8_avx(n.min_rows(), n.max_rows(), r, bound, t.as_mut_ptr()) }
@@ -123,7 +144,7 @@ pub(crate) fn triangles8(
     out: &mut [PrimHit; 8],
 ) -> (u32, u32) {
     assert!(rows.iter().all(|r| r.len() >= 8));
-    assert!(has_avx2());
+    assert!(cpu_has_avx2());
     let active = if count >= 8 {
         0xff
     } else {
@@ -287,7 +308,7 @@ mod tests {
             o in vec3(), d in vec3(),
             tmin in coord(), bound in coord(),
         ) {
-            prop_assume!(has_avx2());
+            prop_assume!(cpu_has_avx2());
             let mut node = WideNode::<8>::empty();
             for (i, (a, b)) in corners.iter().enumerate() {
                 if used >> i & 1 != 0 {
@@ -326,7 +347,7 @@ mod tests {
             o in prop_oneof![vec3(), lattice()], d in prop_oneof![vec3(), lattice()],
             tmin in prop_oneof![Just(0.0f32), coord()], tmax in coord(),
         ) {
-            prop_assume!(has_avx2());
+            prop_assume!(cpu_has_avx2());
             let corners: Vec<[Vec3; 3]> = tris.iter().map(|&(a, b, c)| [a, b, c]).collect();
             let tris = crate::Triangles::from_corners(&corners);
             let ray = Ray::new(o, d, tmin, f32::INFINITY);

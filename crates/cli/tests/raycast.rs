@@ -91,6 +91,21 @@ fn every_structure_writes_the_same_hits() {
                 Some(r) => assert!(r == &hits, "{w}: {accel} wrote other hits than brute force"),
             }
         }
+        // The portable fallbacks of the SIMD kernels write the same bits.
+        let out = dir.join(format!("{w}-no-simd.npy"));
+        run_ok(
+            raymesh()
+                .arg("raycast")
+                .arg(&mesh)
+                .arg("--rays")
+                .arg(&rays)
+                .args(["--accel", "bvh8", "--no-simd", "--out"])
+                .arg(&out),
+        );
+        assert!(
+            reference.as_ref() == Some(&npy_data(&out)),
+            "{w}: bvh8 --no-simd wrote other hits than brute force"
+        );
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -40,6 +40,10 @@ pub struct Args {
     /// Also count mean nodes visited and primitives tested per ray (in a separate, untimed pass).
     #[arg(long)]
     pub stats: bool,
+    /// Turn the SIMD kernels off and run the portable fallbacks (same hits,
+    /// bit for bit), to measure what the kernels buy.
+    #[arg(long)]
+    pub no_simd: bool,
 }
 
 /// The `--json` object.
@@ -113,6 +117,7 @@ pub fn count(scene: &Scene<Triangles>, rays: &[Ray], any_hit: bool) -> (f64, f64
 
 /// Runs the command.
 pub fn run(args: &Args) -> Result<()> {
+    raymesh_accel::set_simd_enabled(!args.no_simd);
     let pool = crate::cmd::thread_pool(args.threads)?;
     let threads = pool.current_num_threads();
     let mesh = read_mesh(&args.mesh)?;

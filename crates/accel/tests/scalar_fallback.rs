@@ -1,0 +1,82 @@
+//! The portable fallbacks of the SIMD kernels, checked on machines that
+//! have the instructions: with the kernels switched off (a process-wide
+//! switch, so this file is its own test process), every BVH over
+//! [`Triangles`] still returns brute force's bits, and the same as with
+//! the kernels on.
+
+use raymesh_accel::*;
+use std::path::PathBuf;
+
+fn load(name: &str) -> TriangleMesh {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../tests/data")
+        .join(name);
+    let m = raymesh_mesh::io::read_mesh(path).unwrap();
+    TriangleMesh::new(m.positions.clone(), m.triangles())
+}
+
+/// Hit as bits, so that `-0.0` and `0.0` differ and NaN compares.
+fn key(h: Option<Hit>) -> Option<(u32, u32, u32, u32)> {
+    h.map(|h| (h.prim, h.t.to_bits(), h.u.to_bits(), h.v.to_bits()))
+}
+
+/// Rays from a sphere around the mesh toward random points in its box, and
+/// rays aimed exactly at vertices and edge midpoints (zero edge functions).
+fn rays(m: &TriangleMesh, n: usize) -> Vec<Ray> {
+    let b = m.positions.iter().fold(Aabb::EMPTY, |a, p| a.grow(*p));
+    let (c, d) = (b.centroid(), b.diagonal());
+    let mut s = 0x2545_f491_4f6c_dd1du64;
+    let mut next = move || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        (s >> 40) as f32 / (1u64 << 24) as f32
+    };
+    let mut out = Vec::new();
+    for i in 0..n {
+        let dir = Vec3::new(next() - 0.5, next() - 0.5, next() - 0.5);
+        let o = c + dir.normalize_or_zero() * 0.75 * d;
+        let p = b.min + (b.max - b.min) * Vec3::new(next(), next(), next());
+        out.push(Ray::infinite(o, p - o));
+        let [a, bb, _] = m.corners((i % m.len()) as u32);
+        out.push(Ray::infinite(o, a - o));
+        out.push(Ray::infinite(o, (a + bb) * 0.5 - o));
+    }
+    out
+}
+
+#[test]
+fn fallbacks_agree_with_brute_force_and_with_the_kernels() {
+    let kinds = [AccelKind::BvhBinned, AccelKind::Bvh4, AccelKind::Bvh8];
+    for name in [
+        "elephant-with-holes.off",
+        "sphere.ply",
+        "cube_quad.off",
+        "degtri_sliding.off",
+    ] {
+        let m = load(name);
+        let rays = rays(&m, 400);
+        let brute = Scene::build(m.clone(), AccelKind::Brute);
+        let want: Vec<_> = rays.iter().map(|r| key(brute.intersect(r))).collect();
+        assert!(want.iter().filter(|w| w.is_some()).count() > rays.len() / 10);
+        for kind in kinds {
+            let s = Scene::build(Triangles::from_mesh(&m), kind);
+            for on in [true, false] {
+                set_simd_enabled(on);
+                for (i, r) in rays.iter().enumerate() {
+                    assert_eq!(
+                        key(s.intersect(r)),
+                        want[i],
+                        "{name} {kind} simd={on}: ray {i} {r:?}"
+                    );
+                    assert_eq!(
+                        s.occluded(r),
+                        want[i].is_some(),
+                        "{name} {kind} simd={on}: any hit, ray {i}"
+                    );
+                }
+            }
+            set_simd_enabled(true);
+        }
+    }
+}
