@@ -208,6 +208,28 @@ impl Accel {
         s
     }
 
+    /// A BVH's primitive permutation (leaf slot → primitive), which an
+    /// owner may store its primitives by; `None` for other structures.
+    pub(crate) fn leaf_order(&self) -> Option<&[u32]> {
+        match self {
+            Self::Bvh(b, _) => Some(b.prim_ids()),
+            Self::Bvh4(b) => Some(b.prim_ids()),
+            Self::Bvh8(b) => Some(b.prim_ids()),
+            _ => None,
+        }
+    }
+
+    /// Hands over [`Self::leaf_order`] once the owner has reordered its
+    /// primitives by it: from then on leaves name primitives by slot.
+    pub(crate) fn take_leaf_order(&mut self) -> Option<Vec<u32>> {
+        match self {
+            Self::Bvh(b, _) => Some(b.take_prim_ids()),
+            Self::Bvh4(b) => Some(b.take_prim_ids()),
+            Self::Bvh8(b) => Some(b.take_prim_ids()),
+            _ => None,
+        }
+    }
+
     /// Calls `leaf` for candidate primitives front to back, as far as the
     /// bound it returns lets the traversal go.
     #[inline]

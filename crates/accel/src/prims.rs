@@ -40,14 +40,7 @@ pub trait Primitives: Send + Sync {
         tmax: f32,
         out: &mut [PrimHit; BLOCK],
     ) -> u32 {
-        let mut mask = 0;
-        for k in 0..count.min(BLOCK as u32) {
-            if let Some(h) = self.intersect(first + k, ray, tmax) {
-                out[k as usize] = h;
-                mask |= 1 << k;
-            }
-        }
-        mask
+        intersect_each(self, first, 0..count.min(BLOCK as u32), ray, tmax, out)
     }
     /// Unit geometric normal of primitive `i` at a hit (not flipped toward the ray).
     fn normal(&self, i: u32, ray: &Ray, hit: &PrimHit) -> Vec3;
@@ -61,6 +54,28 @@ pub trait Primitives: Send + Sync {
     {
         None
     }
+}
+
+/// Tests lanes `lanes` of the block at `first` one by one with
+/// [`Primitives::intersect`]: the portable path of
+/// [`Primitives::intersect_block`]. Returns the mask of lanes hit.
+#[inline(always)]
+fn intersect_each<P: Primitives + ?Sized>(
+    prims: &P,
+    first: u32,
+    lanes: impl Iterator<Item = u32>,
+    ray: &Ray,
+    tmax: f32,
+    out: &mut [PrimHit; BLOCK],
+) -> u32 {
+    let mut mask = 0;
+    for k in lanes {
+        if let Some(h) = prims.intersect(first + k, ray, tmax) {
+            out[k as usize] = h;
+            mask |= 1 << k;
+        }
+    }
+    mask
 }
 
 /// Triangles sharing one vertex buffer: the lecture's TriangleMesh.
@@ -234,25 +249,13 @@ impl Primitives for Triangles {
         #[cfg(target_arch = "x86_64")]
         if crate::simd::has_avx2() {
             let rows = std::array::from_fn(|r| &self.rows[r][first..first + BLOCK]);
-            let (mut mask, redo) = crate::simd::triangles8(rows, count, ray, tmax, out);
+            let (mask, redo) = crate::simd::triangles8(rows, count, ray, tmax, out);
             // Lanes whose edge function rounded to zero take the scalar
             // test's f64 path.
-            for k in (0..count).filter(|k| redo >> k & 1 != 0) {
-                if let Some(h) = self.intersect((first + k) as u32, ray, tmax) {
-                    out[k] = h;
-                    mask |= 1 << k;
-                }
-            }
-            return mask;
+            let lanes = (0..count as u32).filter(|k| redo >> k & 1 != 0);
+            return mask | intersect_each(self, first as u32, lanes, ray, tmax, out);
         }
-        let mut mask = 0;
-        for k in 0..count {
-            if let Some(h) = self.intersect((first + k) as u32, ray, tmax) {
-                out[k] = h;
-                mask |= 1 << k;
-            }
-        }
-        mask
+        intersect_each(self, first as u32, 0..count as u32, ray, tmax, out)
     }
     fn normal(&self, i: u32, _ray: &Ray, _hit: &PrimHit) -> Vec3 {
         let [a, b, c] = self.corners(i);

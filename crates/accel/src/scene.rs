@@ -69,26 +69,11 @@ impl<P: Primitives> Scene<P> {
         let mut accel = Accel::build(kind, &boxes, config);
         let mut prims = prims;
         let mut original = None;
-        match &mut accel {
-            Accel::Bvh(bvh, _) => {
-                if let Some(p) = prims.reordered(bvh.prim_ids()) {
-                    prims = p;
-                    original = Some(bvh.take_prim_ids());
-                }
+        if let Some(order) = accel.leaf_order() {
+            if let Some(p) = prims.reordered(order) {
+                prims = p;
+                original = accel.take_leaf_order();
             }
-            Accel::Bvh4(bvh) => {
-                if let Some(p) = prims.reordered(bvh.prim_ids()) {
-                    prims = p;
-                    original = Some(bvh.take_prim_ids());
-                }
-            }
-            Accel::Bvh8(bvh) => {
-                if let Some(p) = prims.reordered(bvh.prim_ids()) {
-                    prims = p;
-                    original = Some(bvh.take_prim_ids());
-                }
-            }
-            _ => {}
         }
         let build_ms = start.elapsed().as_secs_f64() * 1e3;
         let bounds = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(*b));
@@ -159,10 +144,8 @@ impl<P: Primitives> Scene<P> {
         };
         if let Some(wide) = self.wide_blocks() {
             let mut block = |first: u32, count: u32| {
-                let end = first + count;
-                let mut start = first;
-                while start < end {
-                    let n = (end - start).min(BLOCK as u32);
+                for start in (first..first + count).step_by(BLOCK) {
+                    let n = (first + count - start).min(BLOCK as u32);
                     let mut hits = [PrimHit::default(); BLOCK];
                     let mut mask = self.prims.intersect_block(start, n, ray, tmax, &mut hits);
                     // Lanes in order, each against the bound the ones
@@ -175,7 +158,6 @@ impl<P: Primitives> Scene<P> {
                             offer(start + k, h, &mut tmax);
                         }
                     }
-                    start += n;
                 }
                 tmax
             };
@@ -206,10 +188,8 @@ impl<P: Primitives> Scene<P> {
         let mut found: Option<(u32, PrimHit)> = None;
         if let Some(wide) = self.wide_blocks() {
             let mut block = |first: u32, count: u32| {
-                let end = first + count;
-                let mut start = first;
-                while start < end {
-                    let n = (end - start).min(BLOCK as u32);
+                for start in (first..first + count).step_by(BLOCK) {
+                    let n = (first + count - start).min(BLOCK as u32);
                     let mut hits = [PrimHit::default(); BLOCK];
                     let mask = self
                         .prims
@@ -219,7 +199,6 @@ impl<P: Primitives> Scene<P> {
                         found = Some((start + k, hits[k as usize]));
                         return f32::NEG_INFINITY;
                     }
-                    start += n;
                 }
                 ray.tmax()
             };

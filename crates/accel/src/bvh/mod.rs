@@ -22,6 +22,29 @@ use raymesh_geometry::{cull_bound, Aabb, Ray, Vec3};
 /// which halves the primitives per level, so depth ≤ 64 + log2(2^32) = 96.
 pub(crate) const STACK_SIZE: usize = 96;
 
+/// A block callback for traversals that hand out leaves as slot ranges:
+/// calls `leaf` on each primitive of the range in order (through the
+/// permutation `ids`, when there is one) until it returns a bound below
+/// `tmin`.
+#[inline(always)]
+pub(crate) fn each_prim<'a>(
+    ids: &'a [u32],
+    ray: &'a Ray,
+    leaf: &'a mut impl Leaf,
+) -> impl FnMut(u32, u32) -> f32 + 'a {
+    move |first, count| {
+        let mut tmax = ray.tmax();
+        for p in first..first + count {
+            let id = if ids.is_empty() { p } else { ids[p as usize] };
+            tmax = leaf(id);
+            if tmax < ray.tmin() {
+                break;
+            }
+        }
+        tmax
+    }
+}
+
 /// A node: its box, and either two adjacent children (`count == 0`,
 /// `index` the first child) or a leaf of `count` primitives starting at
 /// `index` in the permutation. 32 bytes, so two fit a cache line.
@@ -222,18 +245,7 @@ impl Bvh {
     /// stop), calling `leaf` per primitive.
     #[inline]
     pub(crate) fn traverse<C: RayCounter>(&self, ray: &Ray, counter: &mut C, leaf: &mut impl Leaf) {
-        let ids = &self.prim_ids;
-        self.traverse_blocks(ray, counter, &mut |first, count| {
-            let mut tmax = ray.tmax();
-            for p in first..first + count {
-                let id = if ids.is_empty() { p } else { ids[p as usize] };
-                tmax = leaf(id);
-                if tmax < ray.tmin() {
-                    break;
-                }
-            }
-            tmax
-        });
+        self.traverse_blocks(ray, counter, &mut each_prim(&self.prim_ids, ray, leaf));
     }
 
     /// Closest-first traversal calling `block(first, count)` for each leaf

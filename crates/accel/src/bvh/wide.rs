@@ -7,7 +7,7 @@
 //! vectorizes; `Bvh8` uses the AVX kernel of [`super::simd`] where the CPU
 //! has AVX2, and the same plain loops elsewhere.
 
-use super::Bvh;
+use super::{each_prim, Bvh};
 use crate::simd;
 use crate::{AccelStats, Leaf, RayCounter};
 use raymesh_geometry::{
@@ -224,18 +224,7 @@ impl<const W: usize> WideBvh<W> {
     /// [`Self::traverse_blocks`]).
     #[inline]
     pub(crate) fn traverse<C: RayCounter>(&self, ray: &Ray, counter: &mut C, leaf: &mut impl Leaf) {
-        let ids = &self.prim_ids;
-        self.traverse_blocks(ray, counter, &mut |first, count| {
-            let mut tmax = ray.tmax();
-            for p in first..first + count {
-                let id = if ids.is_empty() { p } else { ids[p as usize] };
-                tmax = leaf(id);
-                if tmax < ray.tmin() {
-                    break;
-                }
-            }
-            tmax
-        });
+        self.traverse_blocks(ray, counter, &mut each_prim(&self.prim_ids, ray, leaf));
     }
 
     /// Front-to-back traversal: the children a ray enters are pushed
