@@ -4,7 +4,8 @@
 //! al. 2006) and traversed front to back (pbrt-v4's `KdTreeAggregate`).
 
 use crate::{AccelStats, BuildConfig, Leaf, RayCounter};
-use raymesh_geometry::{cull_bound, Aabb, Ray};
+use raymesh_geometry::{cull_bound, Aabb, Ray, Vec3};
+use rayon::prelude::*;
 
 /// Deepest a k-d tree may grow; also the traversal stack size.
 const MAX_DEPTH: usize = 64;
@@ -63,35 +64,107 @@ pub struct KdTree {
     prims: Vec<u32>,
 }
 
+/// Nodes with at least this many primitive references build their two
+/// subtrees as separate rayon tasks.
+const PAR_SUBTREE: usize = 4096;
+
+/// What every node of one build reads.
 struct Builder<'a> {
     boxes: &'a [Aabb],
     config: &'a BuildConfig,
+    max_depth: usize,
+    /// [`PAR_SUBTREE`], or more to build on one thread (tests compare both).
+    par_subtree: usize,
+}
+
+/// Nodes and leaf primitive lists of a subtree built on one thread; child
+/// and primitive indices are relative to these vectors.
+#[derive(Default)]
+struct Local {
     nodes: Vec<KdNode>,
     prims: Vec<u32>,
-    max_depth: usize,
+}
+
+/// A subtree as the parallel recursion returns it, flattened once at the end.
+enum Subtree {
+    Flat(Local),
+    /// A split plane (axis, position) whose two sides were built in parallel.
+    Split(usize, f32, Box<Subtree>, Box<Subtree>),
+}
+
+/// How a node is built: a leaf over these primitives, or a split.
+enum Decision {
+    Leaf(Vec<u32>),
+    Split {
+        axis: usize,
+        split: f32,
+        below: Vec<u32>,
+        above: Vec<u32>,
+        bad: u32,
+    },
+}
+
+/// Appends `tree` to `out` in the order a one-thread build makes (below
+/// subtree right after its parent, then the above subtree), shifting its
+/// child and primitive indices.
+fn place(tree: Subtree, out: &mut Local) {
+    match tree {
+        Subtree::Flat(local) => {
+            let (node_base, prim_base) = (out.nodes.len() as u32, out.prims.len() as u32);
+            out.nodes.extend(local.nodes.into_iter().map(|n| {
+                if n.is_leaf() {
+                    KdNode {
+                        a: n.a + prim_base,
+                        b: n.b,
+                    }
+                } else {
+                    KdNode::interior(n.axis(), n.split(), n.upper() + node_base)
+                }
+            }));
+            out.prims.extend_from_slice(&local.prims);
+        }
+        Subtree::Split(axis, split, below, above) => {
+            let here = out.nodes.len();
+            out.nodes.push(KdNode::interior(axis, split, 0));
+            place(*below, out);
+            let above_index = out.nodes.len() as u32;
+            out.nodes[here] = KdNode::interior(axis, split, above_index);
+            place(*above, out);
+        }
+    }
 }
 
 impl KdTree {
     /// Builds the tree over primitive `i`'s box `boxes[i]`.
     #[must_use]
+    ///
+    /// Large nodes build their two sides in parallel on the current rayon
+    /// pool; the tree is the same whatever the number of threads.
     pub fn build(boxes: &[Aabb], config: &BuildConfig) -> Self {
-        let bounds = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(*b));
+        Self::build_split_at(boxes, config, PAR_SUBTREE)
+    }
+
+    fn build_split_at(boxes: &[Aabb], config: &BuildConfig, par_subtree: usize) -> Self {
+        let bounds = boxes
+            .par_iter()
+            .fold(|| Aabb::EMPTY, |a, b| a.union(*b))
+            .reduce(|| Aabb::EMPTY, Aabb::union);
         let n = boxes.len();
-        let mut b = Builder {
+        let b = Builder {
             boxes,
             config,
-            nodes: Vec::new(),
-            prims: Vec::new(),
             // Havran's rule of thumb, 8 + 1.3 log2 N, within the stack.
             max_depth: ((8.0 + 1.3 * (n.max(1) as f64).log2()).round() as usize).min(MAX_DEPTH - 1),
+            par_subtree,
         };
+        let mut out = Local::default();
         if n > 0 {
-            b.build(bounds, (0..n as u32).collect(), 0, 0);
+            place(b.subtree(bounds, (0..n as u32).collect(), 0, 0), &mut out);
         }
         Self {
             bounds,
-            nodes: b.nodes,
-            prims: b.prims,
+            nodes: out.nodes,
+            prims: out.prims,
         }
     }
 
@@ -201,24 +274,21 @@ impl KdTree {
 }
 
 impl Builder<'_> {
-    fn build(&mut self, bounds: Aabb, ids: Vec<u32>, depth: usize, bad: u32) {
+    /// Leaf or split for a node over `ids` (the box `bounds`).
+    fn decide(&self, bounds: Aabb, ids: Vec<u32>, depth: usize, bad: u32) -> Decision {
         let n = ids.len();
-        let here = self.nodes.len();
         if n <= 1 || depth >= self.max_depth {
-            self.make_leaf(&ids);
-            return;
+            return Decision::Leaf(ids);
         }
         let Some((cost, axis, split)) = self.best_split(bounds, &ids) else {
-            self.make_leaf(&ids);
-            return;
+            return Decision::Leaf(ids);
         };
         let leaf_cost = n as f32;
         let mut bad = bad;
         if cost >= leaf_cost {
             bad += 1;
             if bad > MAX_BAD_REFINES || n <= self.config.max_leaf / 2 {
-                self.make_leaf(&ids);
-                return;
+                return Decision::Leaf(ids);
             }
         }
         let boxes = self.boxes;
@@ -234,58 +304,118 @@ impl Builder<'_> {
             .filter(|&i| boxes[i as usize].max[axis] >= split)
             .collect();
         if below.len() == n && above.len() == n {
-            self.make_leaf(&ids);
-            return;
+            return Decision::Leaf(ids);
         }
-        drop(ids);
-        self.nodes.push(KdNode::interior(axis, split, 0));
-        let (mut lo, mut hi) = (bounds, bounds);
-        lo.max[axis] = split;
-        hi.min[axis] = split;
-        self.build(lo, below, depth + 1, bad);
-        let above_index = self.nodes.len() as u32;
-        self.nodes[here] = KdNode::interior(axis, split, above_index);
-        self.build(hi, above, depth + 1, bad);
+        Decision::Split {
+            axis,
+            split,
+            below,
+            above,
+            bad,
+        }
     }
 
-    fn make_leaf(&mut self, ids: &[u32]) {
-        self.nodes
-            .push(KdNode::leaf(self.prims.len() as u32, ids.len() as u32));
-        self.prims.extend_from_slice(ids);
+    /// Builds the subtree over `ids`, its two sides in parallel when large.
+    fn subtree(&self, bounds: Aabb, ids: Vec<u32>, depth: usize, bad: u32) -> Subtree {
+        if ids.len() < self.par_subtree {
+            let mut local = Local::default();
+            self.build(&mut local, bounds, ids, depth, bad);
+            return Subtree::Flat(local);
+        }
+        match self.decide(bounds, ids, depth, bad) {
+            Decision::Leaf(ids) => {
+                let mut local = Local::default();
+                Self::make_leaf(&mut local, &ids);
+                Subtree::Flat(local)
+            }
+            Decision::Split {
+                axis,
+                split,
+                below,
+                above,
+                bad,
+            } => {
+                let (mut lo, mut hi) = (bounds, bounds);
+                lo.max[axis] = split;
+                hi.min[axis] = split;
+                let (b, a) = rayon::join(
+                    || self.subtree(lo, below, depth + 1, bad),
+                    || self.subtree(hi, above, depth + 1, bad),
+                );
+                Subtree::Split(axis, split, Box::new(b), Box::new(a))
+            }
+        }
+    }
+
+    /// Builds the subtree over `ids` into `out`, on this thread.
+    fn build(&self, out: &mut Local, bounds: Aabb, ids: Vec<u32>, depth: usize, bad: u32) {
+        match self.decide(bounds, ids, depth, bad) {
+            Decision::Leaf(ids) => Self::make_leaf(out, &ids),
+            Decision::Split {
+                axis,
+                split,
+                below,
+                above,
+                bad,
+            } => {
+                let here = out.nodes.len();
+                out.nodes.push(KdNode::interior(axis, split, 0));
+                let (mut lo, mut hi) = (bounds, bounds);
+                lo.max[axis] = split;
+                hi.min[axis] = split;
+                self.build(out, lo, below, depth + 1, bad);
+                let above_index = out.nodes.len() as u32;
+                out.nodes[here] = KdNode::interior(axis, split, above_index);
+                self.build(out, hi, above, depth + 1, bad);
+            }
+        }
+    }
+
+    fn make_leaf(out: &mut Local, ids: &[u32]) {
+        out.nodes
+            .push(KdNode::leaf(out.prims.len() as u32, ids.len() as u32));
+        out.prims.extend_from_slice(ids);
     }
 
     /// Cheapest plane among the bin boundaries of every axis, as (cost, axis, position).
     fn best_split(&self, bounds: Aabb, ids: &[u32]) -> Option<(f32, usize, f32)> {
-        let nb = self.config.bins.clamp(2, 256);
+        // Small nodes need few candidate planes: twice their size is plenty.
+        let nb = self.config.bins.min(2 * ids.len()).clamp(2, 256);
         let ext = bounds.extent();
         let area = bounds.half_area();
         if !(area > 0.0) {
             return None;
         }
         let mut best: Option<(f32, usize, f32)> = None;
-        let mut mins = vec![0u32; nb + 1];
-        let mut maxs = vec![0u32; nb + 1];
+        // One pass over the boxes counts every axis: where each box starts
+        // and ends, in bins.
+        let mut mins = vec![[0u32; 3]; nb + 1];
+        let mut maxs = vec![[0u32; 3]; nb + 1];
+        let scale = Vec3::select(
+            ext.cmpgt(Vec3::ZERO),
+            Vec3::splat(nb as f32) / ext,
+            Vec3::ZERO,
+        );
+        for &i in ids {
+            let b = self.boxes[i as usize];
+            let lo = ((b.min - bounds.min) * scale).max(Vec3::ZERO);
+            let hi = ((b.max - bounds.min) * scale).max(Vec3::ZERO);
+            for axis in 0..3 {
+                mins[(lo[axis] as usize).min(nb)][axis] += 1;
+                maxs[(hi[axis] as usize).min(nb)][axis] += 1;
+            }
+        }
         for axis in 0..3 {
             if !(ext[axis] > 0.0) {
                 continue;
-            }
-            let scale = nb as f32 / ext[axis];
-            mins.fill(0);
-            maxs.fill(0);
-            for &i in ids {
-                let b = self.boxes[i as usize];
-                let lo = ((b.min[axis] - bounds.min[axis]) * scale).max(0.0) as usize;
-                let hi = ((b.max[axis] - bounds.min[axis]) * scale).max(0.0) as usize;
-                mins[lo.min(nb)] += 1;
-                maxs[hi.min(nb)] += 1;
             }
             let (o1, o2) = ((axis + 1) % 3, (axis + 2) % 3);
             let cross = ext[o1] * ext[o2];
             let perim = ext[o1] + ext[o2];
             let (mut n_below, mut n_above) = (0u32, ids.len() as u32);
             for k in 1..nb {
-                n_below += mins[k - 1];
-                n_above -= maxs[k - 1];
+                n_below += mins[k - 1][axis];
+                n_above -= maxs[k - 1][axis];
                 let pos = bounds.min[axis] + k as f32 * ext[axis] / nb as f32;
                 let (wb, wa) = (pos - bounds.min[axis], bounds.max[axis] - pos);
                 let (ab, aa) = (cross + wb * perim, cross + wa * perim);
@@ -294,13 +424,45 @@ impl Builder<'_> {
                 } else {
                     1.0
                 };
-                let cost = self.config.traversal_cost
-                    + bonus * (ab * n_below as f32 + aa * n_above as f32) / area;
+                // Compared before the division by the node's area, which
+                // is the same for every candidate.
+                let cost = bonus * (ab * n_below as f32 + aa * n_above as f32);
                 if best.is_none_or(|(c, _, _)| cost < c) {
                     best = Some((cost, axis, pos));
                 }
             }
         }
-        best
+        best.map(|(c, axis, pos)| (self.config.traversal_cost + c / area, axis, pos))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The parallel recursion lays the tree out node for node as the
+    /// one-thread build does, whether rayon runs one thread or several.
+    #[test]
+    fn parallel_build_is_identical_to_sequential() {
+        let b = crate::test_util::clustered_boxes(20_000);
+        let config = BuildConfig::default();
+        let seq = KdTree::build_split_at(&b, &config, usize::MAX);
+        assert!(
+            seq.nodes.len() > 1000,
+            "a real tree: {} nodes",
+            seq.nodes.len()
+        );
+        for threads in [1, 3] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            for split_at in [2, 64, PAR_SUBTREE] {
+                let par = pool.install(|| KdTree::build_split_at(&b, &config, split_at));
+                assert_eq!(par.nodes, seq.nodes, "split at {split_at}");
+                assert_eq!(par.prims, seq.prims);
+                assert_eq!(par.bounds, seq.bounds);
+            }
+        }
     }
 }

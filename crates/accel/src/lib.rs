@@ -24,6 +24,8 @@ mod prims;
 mod scene;
 mod simd;
 mod stats;
+#[cfg(test)]
+mod test_util;
 
 pub use accel::{Accel, AccelKind, BuildConfig};
 pub use brute::{BoundedList, BruteForce};

@@ -1,6 +1,7 @@
 //! What structures index: primitives with bounds and a ray test.
 
 use raymesh_geometry::{intersect_sphere, intersect_triangle, Aabb, Ray, Sphere, Vec3};
+use rayon::prelude::*;
 
 /// Hit of one primitive: distance and two surface coordinates (barycentric
 /// weights of the 2nd and 3rd corner for triangles; `φ/2π`, `θ/π` for spheres).
@@ -44,16 +45,19 @@ pub trait Primitives: Send + Sync {
     }
     /// Unit geometric normal of primitive `i` at a hit (not flipped toward the ray).
     fn normal(&self, i: u32, ray: &Ray, hit: &PrimHit) -> Vec3;
-    /// The same primitives in another order: new primitive `k` is old
-    /// primitive `order[k]`. A scene built over a BVH uses it to store
-    /// primitives in leaf order and drop the permutation's indirection;
-    /// `None` (the default) keeps the indirection.
-    fn reordered(&self, _order: &[u32]) -> Option<Self>
-    where
-        Self: Sized,
-    {
-        None
+    /// Puts the primitives in another order, in place: new primitive `k`
+    /// is old primitive `order[k]`. A scene built over a BVH uses it to
+    /// store primitives in leaf order and drop the permutation's
+    /// indirection. Returns whether it did; `false` (the default, for types
+    /// that cannot) keeps the indirection.
+    fn reorder(&mut self, _order: &[u32]) -> bool {
+        false
     }
+}
+
+/// `v` in the order `order` (`result[k] = v[order[k]]`), gathered in parallel.
+fn permuted<T: Copy + Send + Sync>(v: &[T], order: &[u32]) -> Vec<T> {
+    order.par_iter().map(|&i| v[i as usize]).collect()
 }
 
 /// Tests lanes `lanes` of the block at `first` one by one with
@@ -146,11 +150,9 @@ impl Primitives for TriangleMesh {
         let [a, b, c] = self.corners(i);
         (b - a).cross(c - a).normalize_or_zero()
     }
-    fn reordered(&self, order: &[u32]) -> Option<Self> {
-        Some(Self {
-            positions: self.positions.clone(),
-            triangles: order.iter().map(|&i| self.triangles[i as usize]).collect(),
-        })
+    fn reorder(&mut self, order: &[u32]) -> bool {
+        self.triangles = permuted(&self.triangles, order);
+        true
     }
 }
 
@@ -261,17 +263,15 @@ impl Primitives for Triangles {
         let [a, b, c] = self.corners(i);
         (b - a).cross(c - a).normalize_or_zero()
     }
-    fn reordered(&self, order: &[u32]) -> Option<Self> {
-        let rows = std::array::from_fn(|r| {
-            let mut row: Vec<f32> = Vec::with_capacity(order.len() + BLOCK);
-            row.extend(order.iter().map(|&i| self.rows[r][i as usize]));
-            row.resize(order.len() + BLOCK, 0.0);
-            row
-        });
-        Some(Self {
-            rows,
-            len: order.len(),
-        })
+    fn reorder(&mut self, order: &[u32]) -> bool {
+        assert_eq!(order.len(), self.len, "a permutation of the triangles");
+        // One row at a time: the copy costs one row of memory, not nine.
+        for row in &mut self.rows {
+            let mut new = permuted(&row[..order.len()], order);
+            new.resize(order.len() + BLOCK, 0.0);
+            *row = new;
+        }
+        true
     }
 }
 
@@ -298,8 +298,9 @@ impl Primitives for Spheres {
     fn normal(&self, i: u32, ray: &Ray, hit: &PrimHit) -> Vec3 {
         self.0[i as usize].normal_at(ray.at(hit.t))
     }
-    fn reordered(&self, order: &[u32]) -> Option<Self> {
-        Some(Self(order.iter().map(|&i| self.0[i as usize]).collect()))
+    fn reorder(&mut self, order: &[u32]) -> bool {
+        self.0 = permuted(&self.0, order);
+        true
     }
 }
 
@@ -349,8 +350,9 @@ impl Primitives for Shapes {
             Shape::Sphere(s) => s.normal_at(ray.at(hit.t)),
         }
     }
-    fn reordered(&self, order: &[u32]) -> Option<Self> {
-        Some(Self(order.iter().map(|&i| self.0[i as usize]).collect()))
+    fn reorder(&mut self, order: &[u32]) -> bool {
+        self.0 = permuted(&self.0, order);
+        true
     }
 }
 

@@ -5,6 +5,7 @@ use crate::{
     PrimHit, Primitives, RayCounter,
 };
 use raymesh_geometry::{Aabb, Ray, Vec3};
+use rayon::prelude::*;
 use std::time::Instant;
 
 /// The closest hit of a ray.
@@ -65,13 +66,15 @@ impl<P: Primitives> Scene<P> {
     #[must_use]
     pub fn build_with(prims: P, kind: AccelKind, config: &BuildConfig) -> Self {
         let start = Instant::now();
-        let boxes: Vec<Aabb> = (0..prims.len() as u32).map(|i| prims.bounds(i)).collect();
+        let boxes: Vec<Aabb> = (0..prims.len() as u32)
+            .into_par_iter()
+            .map(|i| prims.bounds(i))
+            .collect();
         let mut accel = Accel::build(kind, &boxes, config);
         let mut prims = prims;
         let mut original = None;
         if let Some(order) = accel.leaf_order() {
-            if let Some(p) = prims.reordered(order) {
-                prims = p;
+            if prims.reorder(order) {
                 original = accel.take_leaf_order();
             }
         }

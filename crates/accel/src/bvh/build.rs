@@ -4,7 +4,8 @@
 
 use super::{Bvh, Node, NodePair};
 use crate::BuildConfig;
-use raymesh_geometry::{Aabb, Vec3};
+use raymesh_geometry::{Aabb, Vec3, Vec3A};
+use rayon::prelude::*;
 
 /// Depth past which every builder splits by count (halving the node), so
 /// that no tree outgrows the traversal stack whatever the input.
@@ -28,77 +29,260 @@ pub enum BvhBuilder {
     SweepSah,
 }
 
+/// Nodes with at least this many primitives build their two subtrees as
+/// separate rayon tasks; smaller ones build on the thread they are on.
+const PAR_SUBTREE: usize = 4096;
+
+/// Nodes with at least twice this many primitives bin and bound their
+/// primitives in parallel chunks of this many.
+const PAR_CHUNK: usize = 16 * 1024;
+
+/// A primitive as the builders move it: its box and its index, 32 bytes.
+/// Builders partition these in place, so that every pass over a node
+/// reads memory in order (as Embree's builders do with their `PrimRef`s)
+/// rather than chasing indices into the box array.
+#[derive(Clone, Copy, Debug)]
+#[repr(C)]
+struct PrimRef {
+    min: Vec3,
+    id: u32,
+    max: Vec3,
+}
+
+impl PrimRef {
+    #[inline(always)]
+    fn bounds(&self) -> Aabb {
+        Aabb::new(self.min, self.max)
+    }
+
+    #[inline(always)]
+    fn centroid(&self) -> Vec3 {
+        self.bounds().centroid()
+    }
+}
+
+/// What every node of one build reads.
 struct Ctx<'a> {
-    boxes: &'a [Aabb],
-    centroids: Vec<Vec3>,
     config: &'a BuildConfig,
     builder: BvhBuilder,
-    nodes: Vec<Node>,
-    /// Scratch bins of the binned builder, `MAX_BINS` per axis, reused by every node.
-    bins: Vec<(Aabb, u32)>,
+    /// [`PAR_SUBTREE`], or more to build on one thread (tests compare both).
+    par_subtree: usize,
+}
+
+/// A subtree as the parallel recursion returns it, flattened once at the end.
+enum Subtree {
+    /// Built on one thread, laid out as a whole tree is: `nodes[0]` is the
+    /// root, `nodes[1]` unused, sibling pairs from 2 on, and child indices
+    /// point into this vector.
+    Flat(Vec<Node>),
+    /// A root whose two subtrees were built in parallel.
+    Split(Node, Box<Subtree>, Box<Subtree>),
+}
+
+/// A bin of the binned builder: the box of its primitives (in SIMD
+/// registers' layout) and their number.
+#[derive(Clone, Copy, Debug)]
+struct Bin {
+    min: Vec3A,
+    max: Vec3A,
+    count: u32,
+}
+
+impl Bin {
+    const EMPTY: Self = Self {
+        min: Vec3A::INFINITY,
+        max: Vec3A::NEG_INFINITY,
+        count: 0,
+    };
+
+    /// Adds a primitive's box. The primitive's corner comes first in each
+    /// `min`/`max`, so that a NaN there leaves the bin as it was (SSE's
+    /// min and max return their second operand when either is NaN).
+    #[inline(always)]
+    fn add(&mut self, min: Vec3A, max: Vec3A) {
+        self.min = min.min(self.min);
+        self.max = max.max(self.max);
+        self.count += 1;
+    }
+
+    #[inline(always)]
+    fn merge(self, o: Self) -> Self {
+        Self {
+            min: o.min.min(self.min),
+            max: o.max.max(self.max),
+            count: self.count + o.count,
+        }
+    }
+
+    /// Half the surface area of the box, as [`Aabb::half_area`].
+    #[inline(always)]
+    fn half_area(&self) -> f32 {
+        let e = (self.max - self.min).max(Vec3A::ZERO);
+        e.x * e.y + e.y * e.z + e.z * e.x
+    }
+}
+
+/// Scratch bins of the binned builder: [`MAX_BINS`] per axis.
+type Bins = Vec<Bin>;
+
+fn new_bins() -> Bins {
+    vec![Bin::EMPTY; 3 * MAX_BINS]
 }
 
 impl BvhBuilder {
     /// Builds a BVH over primitive boxes; primitive `i` has box `boxes[i]`.
+    ///
+    /// Large nodes build their subtrees in parallel on the current rayon
+    /// pool and bin their primitives in parallel chunks; the tree is the
+    /// same, node for node, whatever the number of threads.
     #[must_use]
     pub fn build(self, boxes: &[Aabb], config: &BuildConfig) -> Bvh {
+        self.build_split_at(boxes, config, PAR_SUBTREE)
+    }
+
+    fn build_split_at(self, boxes: &[Aabb], config: &BuildConfig, par_subtree: usize) -> Bvh {
         let n = boxes.len();
         if n == 0 {
             return Bvh::default();
         }
         assert!(n < u32::MAX as usize, "too many primitives for u32 indices");
-        let mut ids: Vec<u32> = (0..n as u32).collect();
-        let mut ctx = Ctx {
-            boxes,
-            centroids: boxes.iter().map(Aabb::centroid).collect(),
+        let mut refs: Vec<PrimRef> = boxes
+            .par_iter()
+            .enumerate()
+            .map(|(i, b)| PrimRef {
+                min: b.min,
+                id: i as u32,
+                max: b.max,
+            })
+            .collect();
+        let ctx = Ctx {
             config,
             builder: self,
-            nodes: Vec::with_capacity(2 * n / config.max_leaf.max(1) + 2),
-            bins: vec![(Aabb::EMPTY, 0); 3 * MAX_BINS],
+            par_subtree,
         };
-        // The root, and its unused sibling: every later pair then starts at
-        // an even index, i.e. in its own cache line.
-        ctx.nodes.push(Node::new(Aabb::EMPTY));
-        ctx.nodes.push(Node::new(Aabb::EMPTY));
-        let (bounds, cbounds) = ctx.bounds_pair(&ids);
-        ctx.build(0, &mut ids, 0, 1, bounds, cbounds);
-        let pairs = ctx
-            .nodes
+        let (bounds, cbounds) = ctx.bounds_pair(&refs);
+        let tree = ctx.subtree(&mut refs, 0, 1, bounds, cbounds);
+        let mut nodes = Vec::with_capacity(2 * n / config.max_leaf.max(1) + 2);
+        nodes.push(Node::new(Aabb::EMPTY));
+        nodes.push(Node::new(Aabb::EMPTY));
+        nodes[0] = place(tree, &mut nodes);
+        let pairs = nodes
             .chunks_exact(2)
             .map(|c| NodePair([c[0], c[1]]))
             .collect();
         Bvh {
             pairs,
-            prim_ids: ids,
+            prim_ids: refs.par_iter().map(|r| r.id).collect(),
+        }
+    }
+}
+
+/// Appends the nodes of `tree` below its root to `out`, in the order a
+/// one-thread build would have made them (each sibling pair, then the
+/// left subtree, then the right), and returns the root with its child
+/// index pointing into `out`.
+fn place(tree: Subtree, out: &mut Vec<Node>) -> Node {
+    match tree {
+        Subtree::Flat(nodes) => {
+            // Pairs start at 2 in `nodes` and at `out.len()` in `out`.
+            let base = out.len() as u32;
+            let shift = |mut n: Node| {
+                if !n.is_leaf() {
+                    n.index = n.index - 2 + base;
+                }
+                n
+            };
+            out.extend(nodes[2..].iter().map(|&n| shift(n)));
+            shift(nodes[0])
+        }
+        Subtree::Split(mut root, left, right) => {
+            let at = out.len();
+            root.index = at as u32;
+            out.push(Node::new(Aabb::EMPTY));
+            out.push(Node::new(Aabb::EMPTY));
+            out[at] = place(*left, out);
+            out[at + 1] = place(*right, out);
+            root
         }
     }
 }
 
 impl Ctx<'_> {
-    /// Boxes of the primitives and of their centroids, in one pass.
-    fn bounds_pair(&self, ids: &[u32]) -> (Aabb, Aabb) {
-        ids.iter().fold((Aabb::EMPTY, Aabb::EMPTY), |(b, c), &i| {
-            (
-                b.union(self.boxes[i as usize]),
-                c.grow(self.centroids[i as usize]),
-            )
-        })
+    /// Boxes of the primitives and of their centroids, in one pass
+    /// (in parallel chunks for many primitives: unions are exact, so the
+    /// result does not depend on the chunking).
+    fn bounds_pair(&self, ids: &[PrimRef]) -> (Aabb, Aabb) {
+        let one = |ids: &[PrimRef]| {
+            ids.iter().fold((Aabb::EMPTY, Aabb::EMPTY), |(b, c), r| {
+                (b.union(r.bounds()), c.grow(r.centroid()))
+            })
+        };
+        if ids.len() < 2 * PAR_CHUNK {
+            return one(ids);
+        }
+        ids.par_chunks(PAR_CHUNK).map(one).reduce(
+            || (Aabb::EMPTY, Aabb::EMPTY),
+            |(b1, c1), (b2, c2)| (b1.union(b2), c1.union(c2)),
+        )
     }
 
-    /// Builds node `node` over `ids`, which start at `offset` in the
-    /// permutation; `bounds` and `cbounds` are the boxes of the primitives
-    /// and of their centroids.
-    fn build(
-        &mut self,
-        node: usize,
-        ids: &mut [u32],
+    /// Builds the subtree over `ids` (which start at `offset` in the
+    /// permutation), splitting large nodes' children across rayon tasks.
+    fn subtree(
+        &self,
+        ids: &mut [PrimRef],
         offset: u32,
         depth: usize,
         bounds: Aabb,
         cbounds: Aabb,
-    ) {
-        self.nodes[node] = Node::new(bounds);
-        let split = if ids.len() <= 1 {
+    ) -> Subtree {
+        if ids.len() < self.par_subtree {
+            let mut nodes = Vec::with_capacity(2 * ids.len() / self.config.max_leaf.max(1) + 2);
+            nodes.push(Node::new(Aabb::EMPTY));
+            nodes.push(Node::new(Aabb::EMPTY));
+            self.build(
+                &mut nodes,
+                &mut new_bins(),
+                0,
+                ids,
+                offset,
+                depth,
+                bounds,
+                cbounds,
+            );
+            return Subtree::Flat(nodes);
+        }
+        let mut root = Node::new(bounds);
+        match self.split(&mut new_bins(), ids, depth, bounds, cbounds) {
+            None => {
+                root.index = offset;
+                root.count = ids.len() as u32;
+                Subtree::Flat(vec![root, Node::new(Aabb::EMPTY)])
+            }
+            Some(mid) => {
+                let (left, right) = ids.split_at_mut(mid);
+                let (lb, lc) = self.bounds_pair(left);
+                let (rb, rc) = self.bounds_pair(right);
+                let (l, r) = rayon::join(
+                    || self.subtree(left, offset, depth + 1, lb, lc),
+                    || self.subtree(right, offset + mid as u32, depth + 1, rb, rc),
+                );
+                Subtree::Split(root, Box::new(l), Box::new(r))
+            }
+        }
+    }
+
+    /// Where the builder splits a node: `None` for a leaf, else the number
+    /// of primitives that go left (moved to the front of `ids`).
+    fn split(
+        &self,
+        bins: &mut Bins,
+        ids: &mut [PrimRef],
+        depth: usize,
+        bounds: Aabb,
+        cbounds: Aabb,
+    ) -> Option<usize> {
+        if ids.len() <= 1 {
             None
         } else if depth >= SAH_DEPTH_LIMIT {
             Some(self.split_by_count(ids, cbounds))
@@ -107,54 +291,72 @@ impl Ctx<'_> {
                 BvhBuilder::Median => {
                     (ids.len() > MEDIAN_LEAF).then(|| self.split_median(ids, (depth - 1) % 3))
                 }
-                BvhBuilder::BinnedSah => self.split_binned(ids, bounds, cbounds),
+                BvhBuilder::BinnedSah => self.split_binned(bins, ids, bounds, cbounds),
                 BvhBuilder::SweepSah => self.split_sweep(ids, bounds, cbounds),
             }
-        };
-        match split {
+        }
+    }
+
+    /// Builds node `node` of `nodes` over `ids`, which start at `offset`
+    /// in the permutation; `bounds` and `cbounds` are the boxes of the
+    /// primitives and of their centroids. One thread.
+    #[allow(clippy::too_many_arguments)]
+    fn build(
+        &self,
+        nodes: &mut Vec<Node>,
+        bins: &mut Bins,
+        node: usize,
+        ids: &mut [PrimRef],
+        offset: u32,
+        depth: usize,
+        bounds: Aabb,
+        cbounds: Aabb,
+    ) {
+        nodes[node] = Node::new(bounds);
+        match self.split(bins, ids, depth, bounds, cbounds) {
             None => {
-                let n = &mut self.nodes[node];
+                let n = &mut nodes[node];
                 n.index = offset;
                 n.count = ids.len() as u32;
             }
             Some(mid) => {
-                let first = self.nodes.len();
-                self.nodes[node].index = first as u32;
-                self.nodes.push(Node::new(Aabb::EMPTY));
-                self.nodes.push(Node::new(Aabb::EMPTY));
+                let first = nodes.len();
+                nodes[node].index = first as u32;
+                nodes.push(Node::new(Aabb::EMPTY));
+                nodes.push(Node::new(Aabb::EMPTY));
                 let (left, right) = ids.split_at_mut(mid);
                 let (lb, lc) = self.bounds_pair(left);
                 let (rb, rc) = self.bounds_pair(right);
-                self.build(first, left, offset, depth + 1, lb, lc);
-                self.build(first + 1, right, offset + mid as u32, depth + 1, rb, rc);
+                self.build(nodes, bins, first, left, offset, depth + 1, lb, lc);
+                let (o, d) = (offset + mid as u32, depth + 1);
+                self.build(nodes, bins, first + 1, right, o, d, rb, rc);
             }
         }
     }
 
     /// Puts the lower half of centroids on `axis` first; returns the middle.
-    fn split_median(&self, ids: &mut [u32], axis: usize) -> usize {
+    fn split_median(&self, ids: &mut [PrimRef], axis: usize) -> usize {
         let mid = ids.len() / 2;
-        let c = &self.centroids;
-        ids.select_nth_unstable_by(mid, |&a, &b| {
-            c[a as usize][axis].total_cmp(&c[b as usize][axis])
+        ids.select_nth_unstable_by(mid, |a, b| {
+            a.centroid()[axis].total_cmp(&b.centroid()[axis])
         });
         mid
     }
 
     /// Median split on the longest centroid axis: the fallback that always
     /// makes progress.
-    fn split_by_count(&self, ids: &mut [u32], cbounds: Aabb) -> usize {
+    fn split_by_count(&self, ids: &mut [PrimRef], cbounds: Aabb) -> usize {
         self.split_median(ids, cbounds.longest_axis())
     }
 
     /// Leaf or split, given the best split's SAH cost (relative to the node's area).
     fn decide(
         &self,
-        ids: &mut [u32],
+        ids: &mut [PrimRef],
         cbounds: Aabb,
         best: Option<(f32, usize)>,
         area: f32,
-        apply: impl FnOnce(&mut [u32]) -> usize,
+        apply: impl FnOnce(&mut [PrimRef]) -> usize,
     ) -> Option<usize> {
         let n = ids.len();
         let leaf_cost = n as f32;
@@ -174,7 +376,13 @@ impl Ctx<'_> {
 
     /// Binned SAH: one pass bins the centroids on all three axes at once,
     /// then the cheapest bin boundary wins.
-    fn split_binned(&mut self, ids: &mut [u32], bounds: Aabb, cb: Aabb) -> Option<usize> {
+    fn split_binned(
+        &self,
+        bins: &mut Bins,
+        ids: &mut [PrimRef],
+        bounds: Aabb,
+        cb: Aabb,
+    ) -> Option<usize> {
         // Small nodes need few bins: twice their size is plenty.
         let nb = self.config.bins.min(2 * ids.len()).clamp(2, MAX_BINS);
         let ext = cb.extent();
@@ -183,18 +391,23 @@ impl Ctx<'_> {
             Vec3::splat(nb as f32) / ext,
             Vec3::ZERO,
         );
-        let mut bins = std::mem::take(&mut self.bins);
-        for axis in 0..3 {
-            bins[axis * MAX_BINS..axis * MAX_BINS + nb].fill((Aabb::EMPTY, 0));
-        }
-        for &i in ids.iter() {
-            let b = self.boxes[i as usize];
-            let k = bin3(self.centroids[i as usize], cb.min, scale, nb);
-            for axis in 0..3 {
-                let bin = &mut bins[axis * MAX_BINS + k[axis]];
-                bin.0 = bin.0.union(b);
-                bin.1 += 1;
-            }
+        if ids.len() < 2 * PAR_CHUNK {
+            self.bin(ids, cb.min, scale, nb, bins);
+        } else {
+            let merged = ids
+                .par_chunks(PAR_CHUNK)
+                .map(|chunk| {
+                    let mut b = new_bins();
+                    self.bin(chunk, cb.min, scale, nb, &mut b);
+                    b
+                })
+                .reduce(new_bins, |mut a, b| {
+                    for (x, y) in a.iter_mut().zip(&b) {
+                        *x = x.merge(*y);
+                    }
+                    a
+                });
+            bins.copy_from_slice(&merged);
         }
         // (cost, axis, first bin of the right side)
         let mut best: Option<(f32, usize, usize)> = None;
@@ -204,28 +417,25 @@ impl Ctx<'_> {
                 continue;
             }
             let bins = &bins[axis * MAX_BINS..(axis + 1) * MAX_BINS];
-            let mut acc = Aabb::EMPTY;
+            let mut acc = Bin::EMPTY;
             for b in (1..nb).rev() {
-                acc = acc.union(bins[b].0);
+                acc = acc.merge(bins[b]);
                 right_area[b] = acc.half_area();
             }
-            let (mut lbox, mut lcount) = (Aabb::EMPTY, 0u32);
-            let mut rcount = ids.len() as u32;
+            let mut left = Bin::EMPTY;
             for b in 1..nb {
-                lbox = lbox.union(bins[b - 1].0);
-                lcount += bins[b - 1].1;
-                rcount -= bins[b - 1].1;
+                left = left.merge(bins[b - 1]);
+                let (lcount, rcount) = (left.count, ids.len() as u32 - left.count);
                 if lcount == 0 || rcount == 0 {
                     continue;
                 }
+                let lbox = left;
                 let cost = lbox.half_area() * lcount as f32 + right_area[b] * rcount as f32;
                 if best.is_none_or(|(c, _, _)| cost < c) {
                     best = Some((cost, axis, b));
                 }
             }
         }
-        self.bins = bins;
-        let centroids = &self.centroids;
         self.decide(
             ids,
             cb,
@@ -233,33 +443,53 @@ impl Ctx<'_> {
             bounds.half_area(),
             |ids| {
                 let (_, axis, boundary) = best.expect("a split was found");
-                partition(ids, |&i| {
-                    bin3(centroids[i as usize], cb.min, scale, nb)[axis] < boundary
+                partition(ids, |r| {
+                    bin3(r.centroid(), cb.min, scale, nb)[axis] < boundary
                 })
             },
         )
     }
 
-    fn split_sweep(&self, ids: &mut [u32], bounds: Aabb, cbounds: Aabb) -> Option<usize> {
+    /// Counts `ids` into the first `nb` bins of each axis of `bins` (the
+    /// others untouched) and grows each bin's box by its primitives' boxes.
+    fn bin(&self, ids: &[PrimRef], min: Vec3, scale: Vec3, nb: usize, bins: &mut Bins) {
+        for axis in 0..3 {
+            bins[axis * MAX_BINS..axis * MAX_BINS + nb].fill(Bin::EMPTY);
+        }
+        for r in ids {
+            let (lo, hi) = (Vec3A::from(r.min), Vec3A::from(r.max));
+            let k = bin3(r.centroid(), min, scale, nb);
+            for axis in 0..3 {
+                bins[axis * MAX_BINS + k[axis]].add(lo, hi);
+            }
+        }
+    }
+
+    /// Full-sweep SAH over every centroid position on every axis.
+    fn split_sweep(&self, ids: &mut [PrimRef], bounds: Aabb, cbounds: Aabb) -> Option<usize> {
         let n = ids.len();
-        let c = &self.centroids;
+        // Centroid order on an axis, ties broken by index so that the
+        // split does not depend on the order the node's primitives came in.
+        let by_axis = |axis: usize| {
+            move |a: &PrimRef, b: &PrimRef| {
+                a.centroid()[axis]
+                    .total_cmp(&b.centroid()[axis])
+                    .then(a.id.cmp(&b.id))
+            }
+        };
         let mut best: Option<(f32, usize, usize)> = None;
         let mut sorted = ids.to_vec();
         let mut right_area = vec![0.0f32; n];
         for axis in 0..3 {
-            sorted.sort_unstable_by(|&a, &b| {
-                c[a as usize][axis]
-                    .total_cmp(&c[b as usize][axis])
-                    .then(a.cmp(&b))
-            });
+            sorted.sort_unstable_by(by_axis(axis));
             let mut acc = Aabb::EMPTY;
             for k in (1..n).rev() {
-                acc = acc.union(self.boxes[sorted[k] as usize]);
+                acc = acc.union(sorted[k].bounds());
                 right_area[k] = acc.half_area();
             }
             let mut lbox = Aabb::EMPTY;
             for k in 1..n {
-                lbox = lbox.union(self.boxes[sorted[k - 1] as usize]);
+                lbox = lbox.union(sorted[k - 1].bounds());
                 let cost = lbox.half_area() * k as f32 + right_area[k] * (n - k) as f32;
                 if best.is_none_or(|(bc, _, _)| cost < bc) {
                     best = Some((cost, axis, k));
@@ -274,11 +504,7 @@ impl Ctx<'_> {
             area,
             |ids| {
                 let (_, axis, k) = best.expect("a split was found");
-                ids.sort_unstable_by(|&a, &b| {
-                    c[a as usize][axis]
-                        .total_cmp(&c[b as usize][axis])
-                        .then(a.cmp(&b))
-                });
+                ids.sort_unstable_by(by_axis(axis));
                 k
             },
         )
@@ -299,14 +525,57 @@ fn bin3(c: Vec3, min: Vec3, scale: Vec3, nb: usize) -> [usize; 3] {
     ]
 }
 
-/// Moves the elements satisfying `pred` to the front; returns how many there are.
-fn partition(ids: &mut [u32], pred: impl Fn(&u32) -> bool) -> usize {
-    let mut k = 0;
-    for i in 0..ids.len() {
-        if pred(&ids[i]) {
-            ids.swap(i, k);
-            k += 1;
+/// Moves the elements satisfying `pred` to the front; returns how many
+/// there are. Hoare's scheme: only misplaced pairs are swapped.
+fn partition<T>(v: &mut [T], pred: impl Fn(&T) -> bool) -> usize {
+    let (mut i, mut j) = (0, v.len());
+    loop {
+        while i < j && pred(&v[i]) {
+            i += 1;
+        }
+        while i < j && !pred(&v[j - 1]) {
+            j -= 1;
+        }
+        if i + 1 >= j {
+            return i;
+        }
+        v.swap(i, j - 1);
+        i += 1;
+        j -= 1;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The parallel recursion and parallel binning lay the tree out node
+    /// for node as the one-thread build does, for every builder, whether
+    /// rayon runs one thread or several.
+    #[test]
+    fn parallel_build_is_identical_to_sequential() {
+        // Over 2 * PAR_CHUNK primitives, so that binning and bounds go
+        // parallel at the top too.
+        let b = crate::test_util::clustered_boxes(2 * PAR_CHUNK + 1234);
+        let config = BuildConfig::default();
+        for builder in [
+            BvhBuilder::Median,
+            BvhBuilder::BinnedSah,
+            BvhBuilder::SweepSah,
+        ] {
+            let seq = builder.build_split_at(&b, &config, usize::MAX);
+            seq.validate(&b).unwrap();
+            for threads in [1, 3] {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap();
+                for split_at in [2, 64, PAR_SUBTREE] {
+                    let par = pool.install(|| builder.build_split_at(&b, &config, split_at));
+                    assert_eq!(par.nodes(), seq.nodes(), "{builder:?} split at {split_at}");
+                    assert_eq!(par.prim_ids(), seq.prim_ids());
+                }
+            }
         }
     }
-    k
 }

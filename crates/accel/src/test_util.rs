@@ -1,0 +1,23 @@
+//! Inputs shared by the unit tests.
+
+use raymesh_geometry::{Aabb, Vec3};
+
+/// `n` small boxes in seven overlapping clusters (a fixed xorshift
+/// sequence): enough structure that SAH builders have real choices.
+pub(crate) fn clustered_boxes(n: usize) -> Vec<Aabb> {
+    let mut s = 0x2545_f491_u32;
+    let mut next = move || {
+        s ^= s << 13;
+        s ^= s >> 17;
+        s ^= s << 5;
+        (s as f32) / (u32::MAX as f32)
+    };
+    (0..n)
+        .map(|i| {
+            let cluster = Vec3::splat((i % 7) as f32 * 3.0);
+            let p = cluster + Vec3::new(next(), next(), next()) * 2.0;
+            let e = Vec3::new(next(), next(), next()) * 0.05;
+            Aabb::new(p, p + e)
+        })
+        .collect()
+}
