@@ -3,7 +3,9 @@
 
 use crate::{AccelStats, BuildConfig, Leaf, RayCounter};
 use raymesh_geometry::{cull_bound, Aabb, Ray, Vec3};
+use rayon::prelude::*;
 use std::cell::RefCell;
+use std::sync::atomic::{AtomicU32, Ordering};
 
 /// Most cells a grid may have, whatever the density asks: keeps the cell
 /// table within a few hundred MB for any input.
@@ -83,39 +85,61 @@ impl Grid {
             cell_prims: Vec::new(),
             len: n,
         };
-        // Two passes: count per cell, then fill (CSR).
+        // Two parallel passes, count per cell then fill (CSR), with atomic
+        // counters; then each cell's list is sorted, which gives the lists
+        // a one-thread build makes (primitives in increasing order).
         let ncells = res.iter().map(|&r| r as usize).product::<usize>();
-        let mut counts = vec![0u32; ncells + 1];
-        for b in boxes {
+        let each_cell = |b: &Aabb, f: &mut dyn FnMut(usize)| {
             let (lo, hi) = g.cell_range(b);
             for z in lo[2]..=hi[2] {
                 for y in lo[1]..=hi[1] {
                     for x in lo[0]..=hi[0] {
-                        counts[g.cell_index([x, y, z])] += 1;
+                        f(g.cell_index([x, y, z]));
                     }
                 }
             }
-        }
+        };
+        let counts: Vec<AtomicU32> = (0..=ncells).map(|_| AtomicU32::new(0)).collect();
+        boxes.par_iter().for_each(|b| {
+            each_cell(b, &mut |c| {
+                counts[c].fetch_add(1, Ordering::Relaxed);
+            });
+        });
+        let mut counts: Vec<u32> = counts.into_iter().map(AtomicU32::into_inner).collect();
         let mut total = 0u32;
         for c in counts.iter_mut() {
             let here = *c;
             *c = total;
             total += here;
         }
-        let mut fill = counts.clone();
-        let mut prims = vec![0u32; total as usize];
-        for (i, b) in boxes.iter().enumerate() {
-            let (lo, hi) = g.cell_range(b);
-            for z in lo[2]..=hi[2] {
-                for y in lo[1]..=hi[1] {
-                    for x in lo[0]..=hi[0] {
-                        let c = g.cell_index([x, y, z]);
-                        prims[fill[c] as usize] = i as u32;
-                        fill[c] += 1;
-                    }
-                }
-            }
+        let fill: Vec<AtomicU32> = counts.iter().map(|&c| AtomicU32::new(c)).collect();
+        let prims: Vec<AtomicU32> = (0..total).map(|_| AtomicU32::new(0)).collect();
+        boxes.par_iter().enumerate().for_each(|(i, b)| {
+            each_cell(b, &mut |c| {
+                let k = fill[c].fetch_add(1, Ordering::Relaxed);
+                prims[k as usize].store(i as u32, Ordering::Relaxed);
+            });
+        });
+        drop(fill);
+        let mut prims: Vec<u32> = prims.into_iter().map(AtomicU32::into_inner).collect();
+        // Sort each cell's list, in parallel over runs of cells.
+        const RUN: usize = 4096;
+        let mut runs = Vec::with_capacity(ncells / RUN + 1);
+        let mut rest = &mut prims[..];
+        for first in (0..ncells).step_by(RUN) {
+            let last = (first + RUN).min(ncells);
+            let len = (counts[last] - counts[first]) as usize;
+            let (run, tail) = rest.split_at_mut(len);
+            runs.push((first, run));
+            rest = tail;
         }
+        runs.into_par_iter().for_each(|(first, run)| {
+            let base = counts[first];
+            for c in first..(first + RUN).min(ncells) {
+                let (a, b) = (counts[c] - base, counts[c + 1] - base);
+                run[a as usize..b as usize].sort_unstable();
+            }
+        });
         g.cell_starts = counts;
         g.cell_prims = prims;
         g
@@ -287,6 +311,40 @@ impl Grid {
                 cell[a] -= 1;
             }
             next[a] = boundary_t(a, cell[a]);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The parallel passes give the cell lists of a one-thread build:
+    /// each cell's primitives in increasing order, whatever the threads.
+    #[test]
+    fn parallel_build_is_identical_to_sequential() {
+        let b = crate::test_util::clustered_boxes(20_000);
+        let config = BuildConfig::default();
+        let build = |threads| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| Grid::build(&b, &config))
+        };
+        let one = build(1);
+        assert!(one.cell_prims.len() >= b.len());
+        for (c, w) in one.cell_starts.windows(2).enumerate() {
+            let cell = &one.cell_prims[w[0] as usize..w[1] as usize];
+            assert!(
+                cell.windows(2).all(|p| p[0] < p[1]),
+                "cell {c} out of order"
+            );
+        }
+        for threads in [2, 4] {
+            let many = build(threads);
+            assert_eq!(many.cell_starts, one.cell_starts);
+            assert_eq!(many.cell_prims, one.cell_prims, "{threads} threads");
         }
     }
 }
