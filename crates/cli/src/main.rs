@@ -30,6 +30,8 @@ enum Command {
     Mesh(cmd::mesh::Args),
     /// Subdivide a mesh (Loop or Catmull–Clark) and write the result.
     Subdivide(cmd::subdivide::Args),
+    /// Write a synthetic mesh of any size: terrain, sphere, or the teapot in a stadium.
+    Generate(cmd::generate::Args),
     /// Ray-trace a scene file, a mesh, or (with no argument) the built-in demo to PNG.
     Render(cmd::render::Args),
 }
@@ -63,6 +65,7 @@ fn main() -> ExitCode {
         Command::Render(a) => cmd::render::run(&a),
         Command::Mesh(a) => cmd::mesh::run(&a),
         Command::Subdivide(a) => cmd::subdivide::run(&a),
+        Command::Generate(a) => cmd::generate::run(&a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -141,8 +141,20 @@ impl Camera {
 /// image width and height (primary, diffuse, shadow) or its square root
 /// (random). Rays are `[ox, oy, oz, tmin, dx, dy, dz, tmax]`.
 pub fn make_rays(w: Workload, scene: &dyn Surface, size: u32, seed: u64) -> Vec<[f32; 8]> {
-    let b = scene.bounds();
-    if b.is_empty() {
+    make_rays_framing(w, scene, scene.bounds(), size, seed)
+}
+
+/// [`make_rays`] with the camera framing box `b` instead of the scene's
+/// box (random rays then start around `b` and aim at points in it): to aim
+/// a workload at one part of a scene, such as the teapot in a stadium.
+pub fn make_rays_framing(
+    w: Workload,
+    scene: &dyn Surface,
+    b: Aabb,
+    size: u32,
+    seed: u64,
+) -> Vec<[f32; 8]> {
+    if b.is_empty() || scene.bounds().is_empty() {
         return Vec::new();
     }
     let (c, d) = (b.centroid(), b.diagonal());

@@ -2,9 +2,10 @@
 //! ray workloads of BENCH.md as .npy files, for `raycast` and for peers.
 
 use crate::npy;
-use crate::workload::{make_rays, Workload};
+use crate::workload::{make_rays_framing, Workload};
 use anyhow::{bail, Context, Result};
-use raymesh_accel::{AccelKind, Scene, TriangleMesh};
+use raymesh_accel::{AccelKind, Scene, Surface, TriangleMesh};
+use raymesh_geometry::{Aabb, Vec3};
 use raymesh_mesh::io::read_mesh;
 use std::path::PathBuf;
 
@@ -22,6 +23,11 @@ pub struct Args {
     /// Seed of the random workloads.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Aim at this box instead of the mesh's whole box: six numbers,
+    /// `minx,miny,minz,maxx,maxy,maxz` (e.g. `-1,0,-1,1,2,1` for the teapot
+    /// of `raymesh generate teapot-in-stadium`).
+    #[arg(long, allow_hyphen_values = true)]
+    pub frame: Option<String>,
     /// Output .npy file (overwritten if it exists).
     #[arg(long, short = 'o')]
     pub out: PathBuf,
@@ -38,7 +44,29 @@ pub fn run(args: &Args) -> Result<()> {
         TriangleMesh::new(mesh.positions.clone(), mesh.triangles()),
         AccelKind::FASTEST_BVH,
     );
-    let rays = make_rays(args.workload, &scene, args.size, args.seed);
+    let frame = match &args.frame {
+        None => scene.bounds(),
+        Some(text) => {
+            let bad = || {
+                anyhow::anyhow!(
+                    "--frame {text:?}: expected six finite numbers, min ≤ max on each axis: minx,miny,minz,maxx,maxy,maxz"
+                )
+            };
+            let v: Vec<f32> = text
+                .split(',')
+                .map(|x| x.trim().parse::<f32>().map_err(|_| bad()))
+                .collect::<Result<_>>()?;
+            if v.len() != 6 {
+                return Err(bad());
+            }
+            let (lo, hi) = (Vec3::new(v[0], v[1], v[2]), Vec3::new(v[3], v[4], v[5]));
+            if !(lo.is_finite() && hi.is_finite() && lo.cmple(hi).all()) {
+                return Err(bad());
+            }
+            Aabb::new(lo, hi)
+        }
+    };
+    let rays = make_rays_framing(args.workload, &scene, frame, args.size, args.seed);
     let f = std::fs::File::create(&args.out)
         .with_context(|| format!("{}: cannot create", args.out.display()))?;
     let mut w = std::io::BufWriter::new(f);

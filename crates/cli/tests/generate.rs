@@ -1,0 +1,145 @@
+//! End-to-end tests of `raymesh generate` and `raymesh rays --frame`.
+
+mod common;
+use common::*;
+use std::path::Path;
+use std::process::Command;
+
+fn run_ok(cmd: &mut Command) -> String {
+    let out = cmd.output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).unwrap()
+}
+
+fn info(path: &Path) -> serde_json::Value {
+    let out = run_ok(raymesh().args(["info", "--json"]).arg(path));
+    serde_json::from_str(&out).unwrap()
+}
+
+fn fails_with(cmd: &mut Command, needle: &str) {
+    let out = cmd.output().unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains(needle), "{needle:?} not in {err}");
+}
+
+#[test]
+fn generate_writes_meshes_of_the_asked_size() {
+    let dir = tmpdir("generate");
+    let terrain = dir.join("terrain.ply");
+    run_ok(
+        raymesh()
+            .args(["generate", "terrain", "--triangles", "1000", "-o"])
+            .arg(&terrain),
+    );
+    let v = info(&terrain);
+    let t = v["triangles"].as_u64().unwrap();
+    assert!((1000..1100).contains(&t), "{t}");
+    assert_eq!(v["degenerate_triangles"], 0);
+    assert_eq!(v["unreferenced_vertices"], 0);
+
+    // The teapot keeps its triangles; the stadium is 100 times wider.
+    let stadium = dir.join("stadium.off");
+    run_ok(
+        raymesh()
+            .args([
+                "generate",
+                "teapot-in-stadium",
+                "--stadium-triangles",
+                "200",
+            ])
+            .arg("--teapot")
+            .arg(data("sphere.ply"))
+            .arg("-o")
+            .arg(&stadium),
+    );
+    let v = info(&stadium);
+    assert!(v["triangles"].as_u64().unwrap() > 320 + 100);
+    assert_eq!(v["degenerate_triangles"], 0);
+
+    fails_with(
+        raymesh()
+            .args(["generate", "terrain", "-o"])
+            .arg(dir.join("t.stl")),
+        "must be .obj, .off or .ply",
+    );
+    fails_with(
+        raymesh()
+            .args(["generate", "terrain", "--triangles", "0", "-o"])
+            .arg(&terrain),
+        "--triangles",
+    );
+    fails_with(
+        raymesh()
+            .args(["generate", "sphere", "--teapot"])
+            .arg(data("sphere.ply"))
+            .arg("-o")
+            .arg(&terrain),
+        "--teapot goes with teapot-in-stadium",
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Rays framed on the teapot mostly hit it, and the grid (the structure
+/// this scene is hard for) still returns what brute force returns.
+#[test]
+fn rays_framed_on_the_teapot_hit_it_and_agree() {
+    let dir = tmpdir("frame");
+    let stadium = dir.join("stadium.ply");
+    run_ok(
+        raymesh()
+            .args(["generate", "teapot-in-stadium", "--triangles", "3000"])
+            .arg("-o")
+            .arg(&stadium),
+    );
+    let rays = dir.join("rays.npy");
+    run_ok(
+        raymesh()
+            .arg("rays")
+            .arg(&stadium)
+            .args([
+                "--workload",
+                "primary",
+                "--size",
+                "32",
+                "--frame",
+                "-1,0,-1,1,2,1",
+                "-o",
+            ])
+            .arg(&rays),
+    );
+    let mut hits = Vec::new();
+    for accel in ["brute", "grid", "bvh8"] {
+        let out = dir.join(format!("{accel}.npy"));
+        let json = run_ok(
+            raymesh()
+                .arg("raycast")
+                .arg(&stadium)
+                .arg("--rays")
+                .arg(&rays)
+                .args(["--accel", accel, "--json", "--out"])
+                .arg(&out),
+        );
+        let v: serde_json::Value = serde_json::from_str(&json).unwrap();
+        // The sphere fills most of the frame's view.
+        assert!(v["hits"].as_u64().unwrap() > 32 * 32 / 3, "{accel}: {v}");
+        hits.push(std::fs::read(&out).unwrap());
+    }
+    assert!(hits[1] == hits[0] && hits[2] == hits[0]);
+
+    for bad in ["1,2,3", "1,0,0,0,1,1", "a,b,c,d,e,f", "0,0,0,1,1,inf"] {
+        fails_with(
+            raymesh()
+                .arg("rays")
+                .arg(&stadium)
+                .args(["--workload", "primary", "--frame", bad, "-o"])
+                .arg(&rays),
+            "--frame",
+        );
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
