@@ -192,9 +192,25 @@ impl Triangles {
 
     /// The corners of an indexed mesh's triangles, in the mesh's order.
     #[must_use]
+    ///
+    /// Gathers one row at a time, in parallel, with no copy of the corners
+    /// in between: the peak is the mesh plus the rows.
     pub fn from_mesh(mesh: &TriangleMesh) -> Self {
-        let corners: Vec<[Vec3; 3]> = (0..mesh.len() as u32).map(|i| mesh.corners(i)).collect();
-        Self::from_corners(&corners)
+        let rows = std::array::from_fn(|r| {
+            let (corner, axis) = (r / 3, r % 3);
+            let mut row = Vec::with_capacity(mesh.len() + BLOCK);
+            row.par_extend(
+                mesh.triangles
+                    .par_iter()
+                    .map(|t| mesh.positions[t[corner] as usize][axis]),
+            );
+            row.resize(mesh.len() + BLOCK, 0.0);
+            row
+        });
+        Self {
+            rows,
+            len: mesh.len(),
+        }
     }
 
     /// The corners of triangle `i`.

@@ -32,6 +32,8 @@ enum Command {
     Subdivide(cmd::subdivide::Args),
     /// Write a synthetic mesh of any size: terrain, sphere, or the teapot in a stadium.
     Generate(cmd::generate::Args),
+    /// How build and trace scale with the triangle count (synthetic terrains), with a log-log chart.
+    Scale(cmd::scale::Args),
     /// Ray-trace a scene file, a mesh, or (with no argument) the built-in demo to PNG.
     Render(cmd::render::Args),
 }
@@ -66,6 +68,7 @@ fn main() -> ExitCode {
         Command::Mesh(a) => cmd::mesh::run(&a),
         Command::Subdivide(a) => cmd::subdivide::run(&a),
         Command::Generate(a) => cmd::generate::run(&a),
+        Command::Scale(a) => cmd::scale::run(&a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

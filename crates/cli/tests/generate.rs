@@ -143,3 +143,69 @@ fn rays_framed_on_the_teapot_hit_it_and_agree() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn scale_reports_every_size_structure_and_thread_count_with_a_chart() {
+    let dir = tmpdir("scale");
+    let chart = dir.join("scale.svg");
+    let out = run_ok(
+        raymesh()
+            .args(["scale", "--sizes", "0.001,0.004", "--accel", "bvh8,grid"])
+            .args([
+                "--threads",
+                "1,2",
+                "--size",
+                "16",
+                "--repeat",
+                "1",
+                "--json",
+                "--chart",
+            ])
+            .arg(&chart),
+    );
+    let rows: Vec<serde_json::Value> = out
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(rows.len(), 2 * 2 * 2);
+    for r in &rows {
+        for key in [
+            "triangles",
+            "accel",
+            "threads",
+            "build_ms",
+            "build_mtris_per_s",
+            "mrays_per_s",
+            "nodes_per_ray",
+            "triangles_per_ray",
+            "bytes_per_triangle",
+        ] {
+            assert!(!r[key].is_null(), "{key} missing in {r}");
+        }
+        assert!(r["triangles"].as_u64().unwrap() >= 1000);
+        // Primary rays at a terrain seen from above: something is hit,
+        // so something is tested.
+        assert!(r["triangles_per_ray"].as_f64().unwrap() > 0.0, "{r}");
+        assert_eq!(r["build_speedup"].is_null(), r["threads"] == 1, "{r}");
+    }
+    let svg = std::fs::read_to_string(&chart).unwrap();
+    assert!(svg.starts_with("<svg") && svg.contains("cost per ray"));
+
+    for bad in [
+        vec!["--sizes", "0"],
+        vec!["--sizes", "x"],
+        vec!["--sizes", "2000"],
+        vec!["--threads", "0"],
+    ] {
+        let out = raymesh().arg("scale").args(&bad).output().unwrap();
+        assert!(!out.status.success(), "{bad:?}");
+        assert!(String::from_utf8_lossy(&out.stderr).contains(bad[0]) || bad[0] == "--threads");
+    }
+    let out = raymesh()
+        .args(["scale", "--sizes", "0.001", "--chart"])
+        .arg(dir.join("c.png"))
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    std::fs::remove_dir_all(&dir).unwrap();
+}

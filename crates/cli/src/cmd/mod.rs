@@ -7,6 +7,7 @@ pub mod mesh;
 pub mod raycast;
 pub mod rays;
 pub mod render;
+pub mod scale;
 pub mod subdivide;
 
 /// A rayon pool of `threads` workers (all cores when `None`).
