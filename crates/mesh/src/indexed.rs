@@ -2,6 +2,7 @@
 
 use crate::{ErrorKind, Location, MeshError};
 use raymesh_geometry::{triangle_area2, Aabb, Vec3};
+use rayon::prelude::*;
 
 /// Positions plus polygonal faces, stored compactly: the faces' vertex
 /// indices back to back, and where each face starts (CSR layout).
@@ -103,6 +104,20 @@ impl IndexedMesh {
         self.indices.reserve(3 * faces);
     }
 
+    /// Appends triangles, given as their indices back to back, which the
+    /// caller has checked.
+    pub(crate) fn append_triangles_unchecked(&mut self, indices: Vec<u32>) {
+        let base = self.indices.len() as u32;
+        let n = (indices.len() / 3) as u32;
+        if self.indices.is_empty() {
+            self.indices = indices;
+        } else {
+            self.indices.extend_from_slice(&indices);
+        }
+        self.face_starts
+            .par_extend((1..=n).into_par_iter().map(|f| base + 3 * f));
+    }
+
     /// Appends a face whose indices the caller has checked.
     pub(crate) fn push_face_unchecked(&mut self, face: &[u32]) {
         self.indices.extend_from_slice(face);
@@ -191,11 +206,18 @@ impl IndexedMesh {
             used[i as usize] = true;
         }
         let p = &self.positions;
-        let degenerate = self
-            .triangles()
-            .iter()
-            .filter(|t| triangle_area2(p[t[0] as usize], p[t[1] as usize], p[t[2] as usize]) == 0.0)
-            .count();
+        // Each face's fan, in parallel, without a triangle list in between.
+        let degenerate = (0..self.num_faces())
+            .into_par_iter()
+            .map(|f| {
+                let face = self.face(f);
+                let a = p[face[0] as usize];
+                face[1..]
+                    .windows(2)
+                    .filter(|w| triangle_area2(a, p[w[0] as usize], p[w[1] as usize]) == 0.0)
+                    .count()
+            })
+            .sum();
         MeshStats {
             vertices: self.num_vertices(),
             faces: self.num_faces(),

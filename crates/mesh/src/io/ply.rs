@@ -7,6 +7,7 @@
 use super::text::show;
 use crate::{ErrorKind, IndexedMesh, Location, MeshError};
 use raymesh_geometry::Vec3;
+use rayon::prelude::*;
 
 /// How a PLY file stores its data.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -145,6 +146,28 @@ impl Source for Ascii<'_> {
     }
 }
 
+/// The value of a binary scalar of type `ty` at the start of `b` (which
+/// holds at least `ty.size()` bytes).
+#[inline]
+fn decode(b: &[u8], ty: Scalar, big_endian: bool) -> f64 {
+    let n = ty.size();
+    let mut a = [0u8; 8];
+    a[..n].copy_from_slice(&b[..n]);
+    if big_endian {
+        a[..n].reverse();
+    }
+    match ty {
+        Scalar::I8 => a[0] as i8 as f64,
+        Scalar::U8 => a[0] as f64,
+        Scalar::I16 => i16::from_le_bytes([a[0], a[1]]) as f64,
+        Scalar::U16 => u16::from_le_bytes([a[0], a[1]]) as f64,
+        Scalar::I32 => i32::from_le_bytes([a[0], a[1], a[2], a[3]]) as f64,
+        Scalar::U32 => u32::from_le_bytes([a[0], a[1], a[2], a[3]]) as f64,
+        Scalar::F32 => f32::from_le_bytes([a[0], a[1], a[2], a[3]]) as f64,
+        Scalar::F64 => f64::from_le_bytes(a),
+    }
+}
+
 struct Binary<'a> {
     bytes: &'a [u8],
     pos: usize,
@@ -160,22 +183,8 @@ impl Source for Binary<'_> {
                 self.bytes.len() - self.pos
             ))));
         };
-        let mut a = [0u8; 8];
-        a[..n].copy_from_slice(b);
-        if self.big_endian {
-            a[..n].reverse();
-        }
         self.pos += n;
-        Ok(match ty {
-            Scalar::I8 => a[0] as i8 as f64,
-            Scalar::U8 => a[0] as f64,
-            Scalar::I16 => i16::from_le_bytes([a[0], a[1]]) as f64,
-            Scalar::U16 => u16::from_le_bytes([a[0], a[1]]) as f64,
-            Scalar::I32 => i32::from_le_bytes([a[0], a[1], a[2], a[3]]) as f64,
-            Scalar::U32 => u32::from_le_bytes([a[0], a[1], a[2], a[3]]) as f64,
-            Scalar::F32 => f32::from_le_bytes([a[0], a[1], a[2], a[3]]) as f64,
-            Scalar::F64 => f64::from_le_bytes(a),
-        })
+        Ok(decode(b, ty, self.big_endian))
     }
 
     fn location(&self) -> Location {
@@ -322,27 +331,6 @@ pub(super) fn read(bytes: &[u8]) -> Result<IndexedMesh, MeshError> {
             ));
         }
     }
-    match h.encoding {
-        PlyEncoding::Ascii => read_data(
-            &h,
-            Ascii {
-                bytes,
-                pos: h.data_start,
-                line: h.data_line,
-            },
-        ),
-        e => read_data(
-            &h,
-            Binary {
-                bytes,
-                pos: h.data_start,
-                big_endian: e == PlyEncoding::BinaryBigEndian,
-            },
-        ),
-    }
-}
-
-fn read_data(h: &Header, mut src: impl Source) -> Result<IndexedMesh, MeshError> {
     let nv = h
         .elements
         .iter()
@@ -351,7 +339,120 @@ fn read_data(h: &Header, mut src: impl Source) -> Result<IndexedMesh, MeshError>
     // Counts were checked against the data size, so this reservation is bounded.
     let mut mesh = IndexedMesh::with_capacity(nv, 0, 0);
     let mut face = Vec::new();
-    for el in &h.elements {
+    match h.encoding {
+        PlyEncoding::Ascii => {
+            let mut src = Ascii {
+                bytes,
+                pos: h.data_start,
+                line: h.data_line,
+            };
+            for el in &h.elements {
+                read_element(el, &mut src, &mut mesh, nv, &mut face)?;
+            }
+        }
+        e => {
+            let big_endian = e == PlyEncoding::BinaryBigEndian;
+            let mut src = Binary {
+                bytes,
+                pos: h.data_start,
+                big_endian,
+            };
+            for el in &h.elements {
+                let rest = &bytes[src.pos..];
+                if let Some(used) = read_fixed(el, rest, big_endian, &mut mesh, nv) {
+                    src.pos += used;
+                } else {
+                    read_element(el, &mut src, &mut mesh, nv, &mut face)?;
+                }
+            }
+        }
+    }
+    Ok(mesh)
+}
+
+/// Records of a binary element that all have one size, parsed in parallel:
+/// a vertex element of scalars only, or a face element whose one property
+/// is a list of 3 indices in every record. Returns the bytes used, or
+/// `None` (having changed nothing) when the element is not of that form
+/// or something in it is wrong: then the one-record-at-a-time reader
+/// takes it, and reports any error with its byte offset.
+fn read_fixed(
+    el: &Element,
+    data: &[u8],
+    big_endian: bool,
+    mesh: &mut IndexedMesh,
+    nv: usize,
+) -> Option<usize> {
+    /// Below this many records the plain reader is as fast.
+    const MIN_RECORDS: usize = 4096;
+    if el.count < MIN_RECORDS {
+        return None;
+    }
+    if el.name == b"vertex" && mesh.positions.is_empty() {
+        let mut stride = 0;
+        let mut at = [None; 3];
+        for (name, prop) in &el.props {
+            let Prop::Scalar(ty) = *prop else {
+                return None;
+            };
+            if let Some(axis) = [b"x".as_slice(), b"y", b"z"].iter().position(|a| a == name) {
+                at[axis] = Some((stride, ty));
+            }
+            stride += ty.size();
+        }
+        let at = [at[0]?, at[1]?, at[2]?];
+        let records = data.get(..el.count.checked_mul(stride)?)?;
+        let mut positions = vec![Vec3::ZERO; el.count];
+        positions
+            .par_iter_mut()
+            .zip(records.par_chunks_exact(stride))
+            .try_for_each(|(out, r)| {
+                let p = at.map(|(off, ty)| decode(&r[off..], ty, big_endian) as f32);
+                *out = Vec3::from_array(p);
+                p.iter().all(|v| v.is_finite()).then_some(())
+            })?;
+        mesh.positions = positions;
+        return Some(records.len());
+    }
+    if el.name == b"face" && mesh.num_faces() == 0 && el.props.len() == 1 {
+        let Prop::List(cty, ity) = el.props[0].1 else {
+            return None;
+        };
+        let stride = cty.size() + 3 * ity.size();
+        let records = data.get(..el.count.checked_mul(stride)?)?;
+        // Written in place: no list of triangles in between.
+        let mut indices = vec![0u32; 3 * el.count];
+        indices
+            .par_chunks_exact_mut(3)
+            .zip(records.par_chunks_exact(stride))
+            .try_for_each(|(t, r)| {
+                if decode(r, cty, big_endian) != 3.0 {
+                    return None;
+                }
+                for (k, v) in t.iter_mut().enumerate() {
+                    let i = decode(&r[cty.size() + k * ity.size()..], ity, big_endian);
+                    if !(i >= 0.0 && (i as usize) < nv) {
+                        return None;
+                    }
+                    *v = i as u32;
+                }
+                Some(())
+            })?;
+        mesh.append_triangles_unchecked(indices);
+        return Some(records.len());
+    }
+    None
+}
+
+/// Reads one element's records one at a time into `mesh`.
+fn read_element(
+    el: &Element,
+    src: &mut impl Source,
+    mesh: &mut IndexedMesh,
+    nv: usize,
+    face: &mut Vec<u32>,
+) -> Result<(), MeshError> {
+    {
         let is_vertex = el.name == b"vertex";
         let is_face = el.name == b"face";
         let xyz: Vec<Option<usize>> = el
@@ -458,9 +559,9 @@ fn read_data(h: &Header, mut src: impl Source) -> Result<IndexedMesh, MeshError>
                 mesh.positions.push(Vec3::from_array(p));
             }
             if face_list.is_some() {
-                mesh.push_face_unchecked(&face);
+                mesh.push_face_unchecked(face);
             }
         }
     }
-    Ok(mesh)
+    Ok(())
 }

@@ -63,6 +63,59 @@ fn round_trips_keep_every_bit() {
     }
 }
 
+/// Large binary PLYs take the parallel fixed-record path: the same mesh
+/// as the ascii reading; a quad among the triangles, a NaN or a bad index
+/// deep in the file still come out as the one-record reader has them,
+/// errors with their byte offsets.
+#[test]
+fn large_binary_ply_reads_in_parallel_and_still_reports_errors() {
+    let m = crate::synthetic::terrain(20_000).into_indexed();
+    let (nv, nf) = (m.num_vertices(), m.num_faces());
+    let mut ascii = Vec::new();
+    write_ply(&mut ascii, &m, PlyEncoding::Ascii).unwrap();
+    assert_eq!(read_bytes(&ascii, Format::Ply).unwrap(), m);
+    for enc in [
+        PlyEncoding::BinaryLittleEndian,
+        PlyEncoding::BinaryBigEndian,
+    ] {
+        let big = enc == PlyEncoding::BinaryBigEndian;
+        let mut b = Vec::new();
+        write_ply(&mut b, &m, enc).unwrap();
+        assert_eq!(read_bytes(&b, Format::Ply).unwrap(), m, "{enc:?}");
+        let put = |b: &mut Vec<u8>, at: usize, v: [u8; 4]| {
+            let v = if big { [v[3], v[2], v[1], v[0]] } else { v };
+            b[at..at + 4].copy_from_slice(&v);
+        };
+        let data = b.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
+        let faces = data + 12 * nv;
+        assert_eq!(b.len(), faces + 13 * nf);
+
+        let mut bad = b.clone();
+        put(&mut bad, data + 5000 * 12 + 4, f32::NAN.to_le_bytes());
+        let e = err(&bad, Format::Ply);
+        assert!(matches!(e.kind, ErrorKind::NonFinite(_)), "{e}");
+        assert_eq!(e.location, Location::Byte((data + 5000 * 12) as u64));
+
+        let mut bad = b.clone();
+        put(
+            &mut bad,
+            faces + 7000 * 13 + 1 + 4,
+            (nv as u32).to_le_bytes(),
+        );
+        let e = err(&bad, Format::Ply);
+        assert!(matches!(e.kind, ErrorKind::IndexOutOfRange { .. }), "{e}");
+        assert_eq!(e.location, Location::Byte((faces + 7000 * 13) as u64));
+    }
+    // A quad after thousands of triangles.
+    let mut faces: Vec<Vec<u32>> = m.faces().map(<[u32]>::to_vec).collect();
+    faces.insert(6000, vec![0, 1, 2, 3]);
+    let q =
+        IndexedMesh::from_polygons(m.positions.clone(), faces.iter().map(Vec::as_slice)).unwrap();
+    let mut b = Vec::new();
+    write_ply(&mut b, &q, PlyEncoding::BinaryLittleEndian).unwrap();
+    assert_eq!(read_bytes(&b, Format::Ply).unwrap(), q);
+}
+
 #[test]
 fn write_mesh_by_extension_and_read_back() {
     let dir = std::env::temp_dir().join(format!("raymesh-io-{}", std::process::id()));
