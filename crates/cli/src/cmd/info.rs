@@ -29,7 +29,9 @@ struct InfoJson {
 
 /// Reads the mesh and prints its figures.
 pub fn run(args: &Args) -> Result<()> {
+    let step = crate::cmd::stage(format!("reading {}", args.file.display()));
     let mesh = read_mesh(&args.file)?;
+    step.finish_and_clear();
     let s = mesh.stats();
     if args.json {
         let out = InfoJson {

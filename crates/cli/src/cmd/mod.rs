@@ -19,3 +19,20 @@ pub fn thread_pool(threads: Option<usize>) -> anyhow::Result<rayon::ThreadPool> 
     }
     Ok(b.build()?)
 }
+
+/// A spinner on stderr naming the step under way (reading a file, building
+/// a structure), with the time it has taken so far; hidden when stderr is
+/// not a terminal. Clear it with `finish_and_clear` when the step is done.
+pub fn stage(msg: String) -> indicatif::ProgressBar {
+    use std::io::IsTerminal;
+    if !std::io::stderr().is_terminal() {
+        return indicatif::ProgressBar::hidden();
+    }
+    let b = indicatif::ProgressBar::new_spinner();
+    if let Ok(style) = indicatif::ProgressStyle::with_template("{spinner} {msg} {elapsed}") {
+        b.set_style(style);
+    }
+    b.set_message(msg);
+    b.enable_steady_tick(std::time::Duration::from_millis(100));
+    b
+}

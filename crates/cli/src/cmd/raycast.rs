@@ -120,12 +120,23 @@ pub fn run(args: &Args) -> Result<()> {
     raymesh_accel::set_simd_enabled(!args.no_simd);
     let pool = crate::cmd::thread_pool(args.threads)?;
     let threads = pool.current_num_threads();
-    let mesh = read_mesh(&args.mesh)?;
+    let step = crate::cmd::stage(format!("reading {}", args.mesh.display()));
+    let mut mesh = read_mesh(&args.mesh)?;
     let rays = npy::read_rays(&args.rays)?;
-    let tris = Triangles::from_mesh(&TriangleMesh::new(mesh.positions.clone(), mesh.triangles()));
+    step.finish_and_clear();
+    // The corner copy is all a trace needs: the mesh goes as it is made.
+    let triangles = mesh.triangles();
+    let positions = std::mem::take(&mut mesh.positions);
+    drop(mesh);
+    let tris = Triangles::from_mesh(&TriangleMesh::new(positions, triangles));
     let ntri = tris.len();
     let copy_bytes = tris.bytes();
+    let step = crate::cmd::stage(format!(
+        "building {} over {ntri} triangles",
+        args.accel.name()
+    ));
     let scene = pool.install(|| Scene::build(tris, args.accel));
+    step.finish_and_clear();
     let mut stats = scene.stats();
     // The corner copy is part of what the structure costs (the mesh's own buffers are not).
     stats.bytes += copy_bytes;

@@ -161,7 +161,9 @@ pub fn run(args: &Args) -> Result<()> {
             .as_str(),
         ),
     };
+    let step = crate::cmd::stage("reading meshes and building structures".to_string());
     let world = pool.install(|| World::build(&desc, &file, &mesh_loader(base)))?;
+    step.finish_and_clear();
     let bar = if std::io::stderr().is_terminal() {
         let b = ProgressBar::new(1);
         b.set_style(

@@ -129,18 +129,22 @@ pub fn run(args: &Args) -> Result<()> {
     let mut rows = Vec::new();
     for &millions in &sizes {
         let n = (millions * 1e6).round().max(1.0) as usize;
-        eprintln!("scale: making a terrain of {n} triangles");
+        let step = crate::cmd::stage(format!("making a terrain of {n} triangles"));
         let terrain = synthetic::terrain(n);
         let mesh = TriangleMesh::new(terrain.positions, terrain.triangles);
         let tris = pools[pools.len() - 1].install(|| Triangles::from_mesh(&mesh));
         drop(mesh);
+        step.finish_and_clear();
         let ntri = tris.len();
         let copy_bytes = tris.bytes();
         let mut rays: Vec<Ray> = Vec::new();
         for &accel in &accels {
             let mut one_thread_ms = None;
             for (pool, &t) in pools.iter().zip(&threads) {
-                eprintln!("scale: {ntri} triangles, {} on {t} threads", accel.name());
+                let step = crate::cmd::stage(format!(
+                    "{ntri} triangles: building and tracing {} on {t} threads",
+                    accel.name()
+                ));
                 let mut best = f64::INFINITY;
                 let mut scene = None;
                 for _ in 0..args.repeat {
@@ -194,6 +198,7 @@ pub fn run(args: &Args) -> Result<()> {
                     peak_rss_mib: peak_rss_mib(),
                 };
                 drop(scene);
+                step.finish_and_clear();
                 print_row(&row, args.json)?;
                 rows.push(row);
             }
