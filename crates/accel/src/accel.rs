@@ -164,6 +164,29 @@ impl Accel {
         }
     }
 
+    /// For the BVH kinds, [`Self::build`] over `n` primitives whose boxes
+    /// `bounds(i)` gives, with no array of boxes in between (24 bytes a
+    /// primitive less at the peak); `None` for the other kinds.
+    #[must_use]
+    pub fn build_bvh_by(
+        kind: AccelKind,
+        n: usize,
+        bounds: &(dyn Fn(u32) -> Aabb + Sync),
+        config: &BuildConfig,
+    ) -> Option<Self> {
+        let binned = || BvhBuilder::BinnedSah.build_by(n, bounds, config);
+        Some(match kind {
+            AccelKind::BvhMedian => Self::Bvh(BvhBuilder::Median.build_by(n, bounds, config), kind),
+            AccelKind::BvhBinned => Self::Bvh(binned(), kind),
+            AccelKind::BvhSweep => {
+                Self::Bvh(BvhBuilder::SweepSah.build_by(n, bounds, config), kind)
+            }
+            AccelKind::Bvh4 => Self::Bvh4(Bvh4::from_binary(binned())),
+            AccelKind::Bvh8 => Self::Bvh8(Bvh8::from_binary(binned())),
+            _ => return None,
+        })
+    }
+
     /// Which kind this is.
     #[must_use]
     pub fn kind(&self) -> AccelKind {

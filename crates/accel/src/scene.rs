@@ -66,11 +66,23 @@ impl<P: Primitives> Scene<P> {
     #[must_use]
     pub fn build_with(prims: P, kind: AccelKind, config: &BuildConfig) -> Self {
         let start = Instant::now();
-        let boxes: Vec<Aabb> = (0..prims.len() as u32)
-            .into_par_iter()
-            .map(|i| prims.bounds(i))
-            .collect();
-        let mut accel = Accel::build(kind, &boxes, config);
+        let n = prims.len();
+        // A BVH's root box is the union of the primitives' boxes: the
+        // scene's box, with no array of boxes made.
+        let (mut accel, bounds) = match Accel::build_bvh_by(kind, n, &|i| prims.bounds(i), config) {
+            Some(a) => {
+                let b = a.bounds();
+                (a, b)
+            }
+            None => {
+                let boxes: Vec<Aabb> = (0..n as u32)
+                    .into_par_iter()
+                    .map(|i| prims.bounds(i))
+                    .collect();
+                let b = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(*b));
+                (Accel::build(kind, &boxes, config), b)
+            }
+        };
         let mut prims = prims;
         let mut original = None;
         if let Some(order) = accel.leaf_order() {
@@ -79,7 +91,6 @@ impl<P: Primitives> Scene<P> {
             }
         }
         let build_ms = start.elapsed().as_secs_f64() * 1e3;
-        let bounds = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(*b));
         Self {
             prims,
             accel,

@@ -137,22 +137,42 @@ impl BvhBuilder {
     /// same, node for node, whatever the number of threads.
     #[must_use]
     pub fn build(self, boxes: &[Aabb], config: &BuildConfig) -> Bvh {
-        self.build_split_at(boxes, config, PAR_SUBTREE)
+        self.build_split_at(boxes.len(), &|i| boxes[i as usize], config, PAR_SUBTREE)
     }
 
-    fn build_split_at(self, boxes: &[Aabb], config: &BuildConfig, par_subtree: usize) -> Bvh {
-        let n = boxes.len();
+    /// [`Self::build`] over `n` primitives whose boxes `bounds(i)` gives:
+    /// no array of boxes is made, which saves 24 bytes a primitive of
+    /// peak memory.
+    #[must_use]
+    pub fn build_by(
+        self,
+        n: usize,
+        bounds: &(dyn Fn(u32) -> Aabb + Sync),
+        config: &BuildConfig,
+    ) -> Bvh {
+        self.build_split_at(n, bounds, config, PAR_SUBTREE)
+    }
+
+    fn build_split_at(
+        self,
+        n: usize,
+        bounds: &(dyn Fn(u32) -> Aabb + Sync),
+        config: &BuildConfig,
+        par_subtree: usize,
+    ) -> Bvh {
         if n == 0 {
             return Bvh::default();
         }
         assert!(n < u32::MAX as usize, "too many primitives for u32 indices");
-        let mut refs: Vec<PrimRef> = boxes
-            .par_iter()
-            .enumerate()
-            .map(|(i, b)| PrimRef {
-                min: b.min,
-                id: i as u32,
-                max: b.max,
+        let mut refs: Vec<PrimRef> = (0..n as u32)
+            .into_par_iter()
+            .map(|i| {
+                let b = bounds(i);
+                PrimRef {
+                    min: b.min,
+                    id: i,
+                    max: b.max,
+                }
             })
             .collect();
         let ctx = Ctx {
@@ -162,14 +182,9 @@ impl BvhBuilder {
         };
         let (bounds, cbounds) = ctx.bounds_pair(&refs);
         let tree = ctx.subtree(&mut refs, 0, 1, bounds, cbounds);
-        let mut nodes = Vec::with_capacity(2 * n / config.max_leaf.max(1) + 2);
-        nodes.push(Node::new(Aabb::EMPTY));
-        nodes.push(Node::new(Aabb::EMPTY));
-        nodes[0] = place(tree, &mut nodes);
-        let pairs = nodes
-            .chunks_exact(2)
-            .map(|c| NodePair([c[0], c[1]]))
-            .collect();
+        let mut pairs = Vec::with_capacity(tree.pairs());
+        pairs.push(NodePair([Node::new(Aabb::EMPTY); 2]));
+        pairs[0].0[0] = place(tree, &mut pairs);
         Bvh {
             pairs,
             prim_ids: refs.par_iter().map(|r| r.id).collect(),
@@ -177,31 +192,44 @@ impl BvhBuilder {
     }
 }
 
-/// Appends the nodes of `tree` below its root to `out`, in the order a
-/// one-thread build would have made them (each sibling pair, then the
-/// left subtree, then the right), and returns the root with its child
-/// index pointing into `out`.
-fn place(tree: Subtree, out: &mut Vec<Node>) -> Node {
+impl Subtree {
+    /// Sibling pairs of the whole tree once placed, the root's included.
+    fn pairs(&self) -> usize {
+        match self {
+            Self::Flat(nodes) => nodes.len() / 2,
+            Self::Split(_, l, r) => l.pairs() + r.pairs(),
+        }
+    }
+}
+
+/// Appends the sibling pairs of `tree` below its root to `out`, in the
+/// order a one-thread build makes them (each pair, then the left subtree,
+/// then the right), and returns the root with its child index pointing
+/// into `out` (node `i` is `out[i / 2].0[i % 2]`).
+fn place(tree: Subtree, out: &mut Vec<NodePair>) -> Node {
     match tree {
         Subtree::Flat(nodes) => {
-            // Pairs start at 2 in `nodes` and at `out.len()` in `out`.
-            let base = out.len() as u32;
+            // Pairs start at node 2 in `nodes` and at node `2 * out.len()` in `out`.
+            let base = 2 * out.len() as u32;
             let shift = |mut n: Node| {
                 if !n.is_leaf() {
                     n.index = n.index - 2 + base;
                 }
                 n
             };
-            out.extend(nodes[2..].iter().map(|&n| shift(n)));
+            out.extend(
+                nodes[2..]
+                    .chunks_exact(2)
+                    .map(|c| NodePair([shift(c[0]), shift(c[1])])),
+            );
             shift(nodes[0])
         }
         Subtree::Split(mut root, left, right) => {
             let at = out.len();
-            root.index = at as u32;
-            out.push(Node::new(Aabb::EMPTY));
-            out.push(Node::new(Aabb::EMPTY));
-            out[at] = place(*left, out);
-            out[at + 1] = place(*right, out);
+            root.index = 2 * at as u32;
+            out.push(NodePair([Node::new(Aabb::EMPTY); 2]));
+            out[at].0[0] = place(*left, out);
+            out[at].0[1] = place(*right, out);
             root
         }
     }
@@ -563,7 +591,7 @@ mod tests {
             BvhBuilder::BinnedSah,
             BvhBuilder::SweepSah,
         ] {
-            let seq = builder.build_split_at(&b, &config, usize::MAX);
+            let seq = builder.build_split_at(b.len(), &|i| b[i as usize], &config, usize::MAX);
             seq.validate(&b).unwrap();
             for threads in [1, 3] {
                 let pool = rayon::ThreadPoolBuilder::new()
@@ -571,7 +599,9 @@ mod tests {
                     .build()
                     .unwrap();
                 for split_at in [2, 64, PAR_SUBTREE] {
-                    let par = pool.install(|| builder.build_split_at(&b, &config, split_at));
+                    let par = pool.install(|| {
+                        builder.build_split_at(b.len(), &|i| b[i as usize], &config, split_at)
+                    });
                     assert_eq!(par.nodes(), seq.nodes(), "{builder:?} split at {split_at}");
                     assert_eq!(par.prim_ids(), seq.prim_ids());
                 }
