@@ -191,10 +191,10 @@ impl Triangles {
     }
 
     /// The corners of an indexed mesh's triangles, in the mesh's order.
-    #[must_use]
     ///
     /// Gathers one row at a time, in parallel, with no copy of the corners
     /// in between: the peak is the mesh plus the rows.
+    #[must_use]
     pub fn from_mesh(mesh: &TriangleMesh) -> Self {
         let rows = std::array::from_fn(|r| {
             let (corner, axis) = (r / 3, r % 3);

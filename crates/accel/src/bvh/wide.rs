@@ -325,6 +325,9 @@ impl<const W: usize> WideBvh<W> {
                 h += 1;
             }
             for item in &hits[..h] {
+                if item.count == 0 {
+                    simd::prefetch(&self.nodes[item.child as usize]);
+                }
                 stack.push(*item);
             }
         }
