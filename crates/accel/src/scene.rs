@@ -216,7 +216,7 @@ impl<P: Primitives> Scene<P> {
                 }
                 ray.tmax()
             };
-            wide.traverse_blocks(ray, counter, &mut block);
+            wide.traverse_blocks_unordered(ray, counter, &mut block);
         } else {
             self.accel
                 .traverse(ray, counter, &mut |prim| match self.prims.intersect(
@@ -291,6 +291,24 @@ impl WideRef<'_> {
             Self::W2(b) => b.traverse_blocks(ray, counter, block),
             Self::W4(b) => b.traverse_blocks(ray, counter, block),
             Self::W8(b) => b.traverse_blocks(ray, counter, block),
+        }
+    }
+
+    /// [`Self::traverse_blocks`] for any-hit queries: the wide trees skip
+    /// ordering the children they enter.
+    fn traverse_blocks_unordered<C: RayCounter>(
+        &self,
+        ray: &Ray,
+        counter: &mut C,
+        block: &mut impl FnMut(u32, u32) -> f32,
+    ) {
+        if !ray.is_valid() {
+            return;
+        }
+        match self {
+            Self::W2(b) => b.traverse_blocks(ray, counter, block),
+            Self::W4(b) => b.traverse_blocks_unordered(ray, counter, block),
+            Self::W8(b) => b.traverse_blocks_unordered(ray, counter, block),
         }
     }
 }

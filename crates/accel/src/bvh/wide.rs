@@ -239,26 +239,51 @@ impl<const W: usize> WideBvh<W> {
         counter: &mut C,
         block: &mut impl FnMut(u32, u32) -> f32,
     ) {
+        self.traverse_blocks_in::<true, C>(ray, counter, block);
+    }
+
+    /// [`Self::traverse_blocks`] without ordering the children a ray
+    /// enters, for any-hit queries, which stop at the first hit wherever
+    /// it is: sorting costs more than it saves them (+10–25% on random
+    /// any-hit rays).
+    #[inline]
+    pub(crate) fn traverse_blocks_unordered<C: RayCounter>(
+        &self,
+        ray: &Ray,
+        counter: &mut C,
+        block: &mut impl FnMut(u32, u32) -> f32,
+    ) {
+        self.traverse_blocks_in::<false, C>(ray, counter, block);
+    }
+
+    #[inline(always)]
+    fn traverse_blocks_in<const ORDERED: bool, C: RayCounter>(
+        &self,
+        ray: &Ray,
+        counter: &mut C,
+        block: &mut impl FnMut(u32, u32) -> f32,
+    ) {
         if self.nodes.is_empty() {
             return;
         }
         #[cfg(target_arch = "x86_64")]
         if W == 8 && simd::has_avx2() {
             return simd::with_avx2(|| {
-                self.traverse_with(ray, counter, block, |i, r, bound, t| {
+                self.traverse_with::<ORDERED, C>(ray, counter, block, |i, r, bound, t| {
                     simd::slab8(&self.nodes[i], r, bound, t)
                 })
             });
         }
-        self.traverse_with(ray, counter, block, |i, r, bound, t| {
+        self.traverse_with::<ORDERED, C>(ray, counter, block, |i, r, bound, t| {
             slab_scalar(&self.nodes[i], r, bound, t)
         });
     }
 
     /// The traversal loop, generic over the node test (`test(node, ray,
-    /// bound, entries) -> hit mask`).
+    /// bound, entries) -> hit mask`); `ORDERED` visits entered children
+    /// nearest first.
     #[inline(always)]
-    fn traverse_with<C: RayCounter>(
+    fn traverse_with<const ORDERED: bool, C: RayCounter>(
         &self,
         ray: &Ray,
         counter: &mut C,
@@ -317,7 +342,7 @@ impl<const W: usize> WideBvh<W> {
                     entry: t[k],
                 };
                 let mut j = h;
-                while j > 0 && hits[j - 1].entry < item.entry {
+                while ORDERED && j > 0 && hits[j - 1].entry < item.entry {
                     hits[j] = hits[j - 1];
                     j -= 1;
                 }
