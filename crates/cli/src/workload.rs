@@ -144,6 +144,28 @@ pub fn make_rays(w: Workload, scene: &dyn Surface, size: u32, seed: u64) -> Vec<
     make_rays_framing(w, scene, scene.bounds(), size, seed)
 }
 
+/// Reads a `--frame` box: six numbers `minx,miny,minz,maxx,maxy,maxz`,
+/// finite, min ≤ max on each axis.
+pub fn parse_frame(text: &str) -> anyhow::Result<Aabb> {
+    let bad = || {
+        anyhow::anyhow!(
+            "--frame {text:?}: expected six finite numbers, min ≤ max on each axis: minx,miny,minz,maxx,maxy,maxz"
+        )
+    };
+    let v: Vec<f32> = text
+        .split(',')
+        .map(|x| x.trim().parse::<f32>().map_err(|_| bad()))
+        .collect::<anyhow::Result<_>>()?;
+    if v.len() != 6 {
+        return Err(bad());
+    }
+    let (lo, hi) = (Vec3::new(v[0], v[1], v[2]), Vec3::new(v[3], v[4], v[5]));
+    if !(lo.is_finite() && hi.is_finite() && lo.cmple(hi).all()) {
+        return Err(bad());
+    }
+    Ok(Aabb::new(lo, hi))
+}
+
 /// [`make_rays`] with the camera framing box `b` instead of the scene's
 /// box (random rays then start around `b` and aim at points in it): to aim
 /// a workload at one part of a scene, such as the teapot in a stadium.

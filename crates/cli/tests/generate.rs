@@ -131,6 +131,43 @@ fn rays_framed_on_the_teapot_hit_it_and_agree() {
     }
     assert!(hits[1] == hits[0] && hits[2] == hits[0]);
 
+    // The benchmark shows the trade-off: aimed at the teapot, the grid
+    // tests far more triangles a ray than the BVH (counts, not times).
+    let out = run_ok(
+        raymesh()
+            .arg("bench")
+            .arg(&stadium)
+            .args([
+                "--accel",
+                "grid,bvh8",
+                "--workloads",
+                "primary",
+                "--size",
+                "16",
+            ])
+            .args([
+                "--threads",
+                "1",
+                "--repeat",
+                "1",
+                "--json",
+                "--frame",
+                "-1,0,-1,1,2,1",
+            ]),
+    );
+    let per_ray: Vec<(String, f64)> = out
+        .lines()
+        .map(|l| {
+            let v: serde_json::Value = serde_json::from_str(l).unwrap();
+            (
+                v["accel"].as_str().unwrap().to_string(),
+                v["triangles_per_ray"].as_f64().unwrap(),
+            )
+        })
+        .collect();
+    let of = |a: &str| per_ray.iter().find(|r| r.0 == a).unwrap().1;
+    assert!(of("grid") > 10.0 * of("bvh8"), "{per_ray:?}");
+
     for bad in ["1,2,3", "1,0,0,0,1,1", "a,b,c,d,e,f", "0,0,0,1,1,inf"] {
         fails_with(
             raymesh()

@@ -5,10 +5,10 @@
 use crate::cmd::raycast::{count, trace};
 use crate::cmd::thread_pool;
 use crate::npy::HitRecord;
-use crate::workload::{make_rays, Workload};
+use crate::workload::{make_rays_framing, parse_frame, Workload};
 use anyhow::{bail, Result};
 use indicatif::{ProgressBar, ProgressStyle};
-use raymesh_accel::{AccelKind, Ray, Scene, TriangleMesh, Triangles};
+use raymesh_accel::{AccelKind, Ray, Scene, Surface, TriangleMesh, Triangles};
 use raymesh_geometry::Vec3;
 use raymesh_mesh::io::read_mesh;
 use serde::Serialize;
@@ -37,6 +37,10 @@ pub struct Args {
     /// Timed repeats; the best is reported.
     #[arg(long, default_value_t = 3)]
     pub repeat: u32,
+    /// Aim the workloads at this box instead of each mesh's whole box:
+    /// `minx,miny,minz,maxx,maxy,maxz` (as `raymesh rays --frame`).
+    #[arg(long, allow_hyphen_values = true)]
+    pub frame: Option<String>,
     /// Print JSON lines instead of tables.
     #[arg(long)]
     pub json: bool,
@@ -80,6 +84,7 @@ pub fn run(args: &Args) -> Result<()> {
         parse_list(&args.accel)?
     };
     let workloads: Vec<Workload> = parse_list(&args.workloads)?;
+    let frame = args.frame.as_deref().map(parse_frame).transpose()?;
     let all = thread_pool(None)?.current_num_threads();
     let threads: Vec<usize> = match &args.threads {
         Some(t) => t
@@ -116,17 +121,23 @@ pub fn run(args: &Args) -> Result<()> {
         let rays: Vec<(Workload, Vec<Ray>)> = workloads
             .iter()
             .map(|&w| {
-                let r = make_rays(w, &reference, args.size, 1)
-                    .into_iter()
-                    .map(|r| {
-                        Ray::new(
-                            Vec3::new(r[0], r[1], r[2]),
-                            Vec3::new(r[4], r[5], r[6]),
-                            r[3],
-                            r[7],
-                        )
-                    })
-                    .collect();
+                let r = make_rays_framing(
+                    w,
+                    &reference,
+                    frame.unwrap_or(reference.bounds()),
+                    args.size,
+                    1,
+                )
+                .into_iter()
+                .map(|r| {
+                    Ray::new(
+                        Vec3::new(r[0], r[1], r[2]),
+                        Vec3::new(r[4], r[5], r[6]),
+                        r[3],
+                        r[7],
+                    )
+                })
+                .collect();
                 (w, r)
             })
             .collect();

@@ -2,10 +2,9 @@
 //! ray workloads of BENCH.md as .npy files, for `raycast` and for peers.
 
 use crate::npy;
-use crate::workload::{make_rays_framing, Workload};
+use crate::workload::{make_rays_framing, parse_frame, Workload};
 use anyhow::{bail, Context, Result};
 use raymesh_accel::{AccelKind, Scene, Surface, TriangleMesh};
-use raymesh_geometry::{Aabb, Vec3};
 use raymesh_mesh::io::read_mesh;
 use std::path::PathBuf;
 
@@ -46,25 +45,7 @@ pub fn run(args: &Args) -> Result<()> {
     );
     let frame = match &args.frame {
         None => scene.bounds(),
-        Some(text) => {
-            let bad = || {
-                anyhow::anyhow!(
-                    "--frame {text:?}: expected six finite numbers, min ≤ max on each axis: minx,miny,minz,maxx,maxy,maxz"
-                )
-            };
-            let v: Vec<f32> = text
-                .split(',')
-                .map(|x| x.trim().parse::<f32>().map_err(|_| bad()))
-                .collect::<Result<_>>()?;
-            if v.len() != 6 {
-                return Err(bad());
-            }
-            let (lo, hi) = (Vec3::new(v[0], v[1], v[2]), Vec3::new(v[3], v[4], v[5]));
-            if !(lo.is_finite() && hi.is_finite() && lo.cmple(hi).all()) {
-                return Err(bad());
-            }
-            Aabb::new(lo, hi)
-        }
+        Some(text) => parse_frame(text)?,
     };
     let rays = make_rays_framing(args.workload, &scene, frame, args.size, args.seed);
     let f = std::fs::File::create(&args.out)
