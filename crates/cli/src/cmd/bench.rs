@@ -224,7 +224,7 @@ fn print_rows(rows: &[Row], json: bool, path: &std::path::Path, ntri: usize) -> 
     );
     for r in rows {
         println!(
-            "{:<11} {:<8} {:>3} {:>9.1} {:>9.1} {:>7.1} {:>8} {:>6} {:>6.1} {:>9.2} {:>9.2} {:>8.1} {:>8.1}",
+            "{:<11} {:<8} {:>3} {:>9.1} {:>9.1} {:>7.1} {:>8} {:>6} {:>6.1} {:>9} {:>9} {:>8.1} {:>8.1}",
             r.accel,
             r.workload,
             r.threads,
@@ -234,8 +234,8 @@ fn print_rows(rows: &[Row], json: bool, path: &std::path::Path, ntri: usize) -> 
             r.nodes,
             r.depth,
             r.sah_cost,
-            r.closest_mrays_per_s,
-            r.any_hit_mrays_per_s,
+            crate::cmd::rate(r.closest_mrays_per_s),
+            crate::cmd::rate(r.any_hit_mrays_per_s),
             r.nodes_per_ray,
             r.triangles_per_ray
         );

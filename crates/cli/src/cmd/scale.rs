@@ -221,7 +221,7 @@ fn print_row(r: &Row, json: bool) -> Result<()> {
         println!("{}", serde_json::to_string(r)?);
     } else {
         println!(
-            "{:>11} {:<10} {:>3} {:>10.1} {:>8.2} {:>7} {:>8.2} {:>7.1} {:>7.1} {:>6.1} {:>8}",
+            "{:>11} {:<10} {:>3} {:>10.1} {:>8.2} {:>7} {:>8} {:>7.1} {:>7.1} {:>6.1} {:>8}",
             r.triangles,
             r.accel,
             r.threads,
@@ -229,7 +229,7 @@ fn print_row(r: &Row, json: bool) -> Result<()> {
             r.build_mtris_per_s,
             r.build_speedup
                 .map_or_else(|| "-".to_string(), |s| format!("{s:.2}×")),
-            r.mrays_per_s,
+            crate::cmd::rate(r.mrays_per_s),
             r.nodes_per_ray,
             r.triangles_per_ray,
             r.bytes_per_triangle,
