@@ -336,10 +336,7 @@ mod tests {
         let b = crate::test_util::clustered_boxes(20_000);
         let config = BuildConfig::default();
         let build = |threads| {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap();
+            let pool = crate::test_util::pool(threads);
             pool.install(|| Grid::build(&b, &config))
         };
         let one = build(1);

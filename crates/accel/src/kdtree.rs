@@ -95,13 +95,17 @@ enum Subtree {
 /// How a node is built: a leaf over these primitives, or a split.
 enum Decision {
     Leaf(Vec<u32>),
-    Split {
-        axis: usize,
-        split: f32,
-        below: Vec<u32>,
-        above: Vec<u32>,
-        bad: u32,
-    },
+    Split(Split),
+}
+
+/// A split plane, the primitives and boxes of its two sides, and the
+/// count of splits that did not pay along the path.
+struct Split {
+    axis: usize,
+    pos: f32,
+    below: (Aabb, Vec<u32>),
+    above: (Aabb, Vec<u32>),
+    bad: u32,
 }
 
 /// Appends `tree` to `out` in the order a one-thread build makes (below
@@ -306,13 +310,16 @@ impl Builder<'_> {
         if below.len() == n && above.len() == n {
             return Decision::Leaf(ids);
         }
-        Decision::Split {
+        let (mut lo, mut hi) = (bounds, bounds);
+        lo.max[axis] = split;
+        hi.min[axis] = split;
+        Decision::Split(Split {
             axis,
-            split,
-            below,
-            above,
+            pos: split,
+            below: (lo, below),
+            above: (hi, above),
             bad,
-        }
+        })
     }
 
     /// Builds the subtree over `ids`, its two sides in parallel when large.
@@ -328,21 +335,12 @@ impl Builder<'_> {
                 Self::make_leaf(&mut local, &ids);
                 Subtree::Flat(local)
             }
-            Decision::Split {
-                axis,
-                split,
-                below,
-                above,
-                bad,
-            } => {
-                let (mut lo, mut hi) = (bounds, bounds);
-                lo.max[axis] = split;
-                hi.min[axis] = split;
+            Decision::Split(s) => {
                 let (b, a) = rayon::join(
-                    || self.subtree(lo, below, depth + 1, bad),
-                    || self.subtree(hi, above, depth + 1, bad),
+                    || self.subtree(s.below.0, s.below.1, depth + 1, s.bad),
+                    || self.subtree(s.above.0, s.above.1, depth + 1, s.bad),
                 );
-                Subtree::Split(axis, split, Box::new(b), Box::new(a))
+                Subtree::Split(s.axis, s.pos, Box::new(b), Box::new(a))
             }
         }
     }
@@ -351,22 +349,13 @@ impl Builder<'_> {
     fn build(&self, out: &mut Local, bounds: Aabb, ids: Vec<u32>, depth: usize, bad: u32) {
         match self.decide(bounds, ids, depth, bad) {
             Decision::Leaf(ids) => Self::make_leaf(out, &ids),
-            Decision::Split {
-                axis,
-                split,
-                below,
-                above,
-                bad,
-            } => {
+            Decision::Split(s) => {
                 let here = out.nodes.len();
-                out.nodes.push(KdNode::interior(axis, split, 0));
-                let (mut lo, mut hi) = (bounds, bounds);
-                lo.max[axis] = split;
-                hi.min[axis] = split;
-                self.build(out, lo, below, depth + 1, bad);
+                out.nodes.push(KdNode::interior(s.axis, s.pos, 0));
+                self.build(out, s.below.0, s.below.1, depth + 1, s.bad);
                 let above_index = out.nodes.len() as u32;
-                out.nodes[here] = KdNode::interior(axis, split, above_index);
-                self.build(out, hi, above, depth + 1, bad);
+                out.nodes[here] = KdNode::interior(s.axis, s.pos, above_index);
+                self.build(out, s.above.0, s.above.1, depth + 1, s.bad);
             }
         }
     }
@@ -453,10 +442,7 @@ mod tests {
             seq.nodes.len()
         );
         for threads in [1, 3] {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap();
+            let pool = crate::test_util::pool(threads);
             for split_at in [2, 64, PAR_SUBTREE] {
                 let par = pool.install(|| KdTree::build_split_at(&b, &config, split_at));
                 assert_eq!(par.nodes, seq.nodes, "split at {split_at}");

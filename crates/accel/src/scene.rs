@@ -284,14 +284,7 @@ impl WideRef<'_> {
         counter: &mut C,
         block: &mut impl FnMut(u32, u32) -> f32,
     ) {
-        if !ray.is_valid() {
-            return;
-        }
-        match self {
-            Self::W2(b) => b.traverse_blocks(ray, counter, block),
-            Self::W4(b) => b.traverse_blocks(ray, counter, block),
-            Self::W8(b) => b.traverse_blocks(ray, counter, block),
-        }
+        self.traverse_blocks_in(true, ray, counter, block);
     }
 
     /// [`Self::traverse_blocks`] for any-hit queries: the wide trees skip
@@ -302,13 +295,26 @@ impl WideRef<'_> {
         counter: &mut C,
         block: &mut impl FnMut(u32, u32) -> f32,
     ) {
+        self.traverse_blocks_in(false, ray, counter, block);
+    }
+
+    #[inline(always)]
+    fn traverse_blocks_in<C: RayCounter>(
+        &self,
+        ordered: bool,
+        ray: &Ray,
+        counter: &mut C,
+        block: &mut impl FnMut(u32, u32) -> f32,
+    ) {
         if !ray.is_valid() {
             return;
         }
-        match self {
-            Self::W2(b) => b.traverse_blocks(ray, counter, block),
-            Self::W4(b) => b.traverse_blocks_unordered(ray, counter, block),
-            Self::W8(b) => b.traverse_blocks_unordered(ray, counter, block),
+        match (self, ordered) {
+            (Self::W2(b), _) => b.traverse_blocks(ray, counter, block),
+            (Self::W4(b), true) => b.traverse_blocks(ray, counter, block),
+            (Self::W4(b), false) => b.traverse_blocks_unordered(ray, counter, block),
+            (Self::W8(b), true) => b.traverse_blocks(ray, counter, block),
+            (Self::W8(b), false) => b.traverse_blocks_unordered(ray, counter, block),
         }
     }
 }

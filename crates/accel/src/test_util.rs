@@ -21,3 +21,11 @@ pub(crate) fn clustered_boxes(n: usize) -> Vec<Aabb> {
         })
         .collect()
 }
+
+/// A rayon pool of `threads` workers, for tests that compare thread counts.
+pub(crate) fn pool(threads: usize) -> rayon::ThreadPool {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .expect("a thread pool")
+}

@@ -144,6 +144,17 @@ pub fn make_rays(w: Workload, scene: &dyn Surface, size: u32, seed: u64) -> Vec<
     make_rays_framing(w, scene, scene.bounds(), size, seed)
 }
 
+/// A packed ray `[ox, oy, oz, tmin, dx, dy, dz, tmax]` (the rows
+/// [`make_rays`] returns and BENCH.md's `.npy` files hold) as a [`Ray`].
+pub fn unpack_ray(r: [f32; 8]) -> Ray {
+    Ray::new(
+        Vec3::new(r[0], r[1], r[2]),
+        Vec3::new(r[4], r[5], r[6]),
+        r[3],
+        r[7],
+    )
+}
+
 /// Reads a `--frame` box: six numbers `minx,miny,minz,maxx,maxy,maxz`,
 /// finite, min ≤ max on each axis.
 pub fn parse_frame(text: &str) -> anyhow::Result<Aabb> {

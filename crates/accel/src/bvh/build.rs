@@ -594,10 +594,7 @@ mod tests {
             let seq = builder.build_split_at(b.len(), &|i| b[i as usize], &config, usize::MAX);
             seq.validate(&b).unwrap();
             for threads in [1, 3] {
-                let pool = rayon::ThreadPoolBuilder::new()
-                    .num_threads(threads)
-                    .build()
-                    .unwrap();
+                let pool = crate::test_util::pool(threads);
                 for split_at in [2, 64, PAR_SUBTREE] {
                     let par = pool.install(|| {
                         builder.build_split_at(b.len(), &|i| b[i as usize], &config, split_at)

@@ -5,11 +5,10 @@
 use crate::cmd::raycast::{count, trace};
 use crate::cmd::thread_pool;
 use crate::npy::HitRecord;
-use crate::workload::{make_rays_framing, parse_frame, Workload};
+use crate::workload::{make_rays_framing, parse_frame, unpack_ray, Workload};
 use anyhow::{bail, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use raymesh_accel::{AccelKind, Ray, Scene, Surface, TriangleMesh, Triangles};
-use raymesh_geometry::Vec3;
 use raymesh_mesh::io::read_mesh;
 use serde::Serialize;
 use std::io::IsTerminal;
@@ -129,14 +128,7 @@ pub fn run(args: &Args) -> Result<()> {
                     1,
                 )
                 .into_iter()
-                .map(|r| {
-                    Ray::new(
-                        Vec3::new(r[0], r[1], r[2]),
-                        Vec3::new(r[4], r[5], r[6]),
-                        r[3],
-                        r[7],
-                    )
-                })
+                .map(unpack_ray)
                 .collect();
                 (w, r)
             })

@@ -6,10 +6,9 @@
 use crate::cmd::raycast::{count, trace};
 use crate::cmd::thread_pool;
 use crate::npy::HitRecord;
-use crate::workload::{make_rays, Workload};
+use crate::workload::{make_rays, unpack_ray, Workload};
 use anyhow::{bail, Context, Result};
 use raymesh_accel::{AccelKind, Primitives, Ray, Scene, TriangleMesh, Triangles};
-use raymesh_geometry::Vec3;
 use raymesh_mesh::synthetic;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -168,14 +167,7 @@ pub fn run(args: &Args) -> Result<()> {
                 if rays.is_empty() {
                     rays = make_rays(Workload::Primary, &scene, args.size, 1)
                         .into_iter()
-                        .map(|r| {
-                            Ray::new(
-                                Vec3::new(r[0], r[1], r[2]),
-                                Vec3::new(r[4], r[5], r[6]),
-                                r[3],
-                                r[7],
-                            )
-                        })
+                        .map(unpack_ray)
                         .collect();
                 }
                 let mut hits = vec![HitRecord::MISS; rays.len()];
