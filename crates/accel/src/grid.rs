@@ -89,16 +89,6 @@ impl Grid {
         // counters; then each cell's list is sorted, which gives the lists
         // a one-thread build makes (primitives in increasing order).
         let ncells = res.iter().map(|&r| r as usize).product::<usize>();
-        let each_cell = |b: &Aabb, f: &mut dyn FnMut(usize)| {
-            let (lo, hi) = g.cell_range(b);
-            for z in lo[2]..=hi[2] {
-                for y in lo[1]..=hi[1] {
-                    for x in lo[0]..=hi[0] {
-                        f(g.cell_index([x, y, z]));
-                    }
-                }
-            }
-        };
         // Every pass over cells or references runs in parallel: at 100M
         // triangles the sequential ones were most of the build.
         let counts: Vec<AtomicU32> = (0..=ncells)
@@ -106,7 +96,7 @@ impl Grid {
             .map(|_| AtomicU32::new(0))
             .collect();
         boxes.par_iter().for_each(|b| {
-            each_cell(b, &mut |c| {
+            g.for_cells(b, |c| {
                 counts[c].fetch_add(1, Ordering::Relaxed);
             });
         });
@@ -125,7 +115,7 @@ impl Grid {
             .map(|_| AtomicU32::new(0))
             .collect();
         boxes.par_iter().enumerate().for_each(|(i, b)| {
-            each_cell(b, &mut |c| {
+            g.for_cells(b, |c| {
                 let k = fill[c].fetch_add(1, Ordering::Relaxed);
                 prims[k as usize].store(i as u32, Ordering::Relaxed);
             });
@@ -177,6 +167,20 @@ impl Grid {
         let f = (p[a] - self.bounds.min[a]) * self.inv_cell_size[a];
         // `as` saturates (NaN → 0), then clamp to the last cell.
         (f.floor().max(0.0) as u32).min(self.res[a] - 1)
+    }
+
+    /// Calls `f` with the index of every cell a box overlaps (generic, so
+    /// that the build's passes inline it).
+    #[inline]
+    fn for_cells(&self, b: &Aabb, mut f: impl FnMut(usize)) {
+        let (lo, hi) = self.cell_range(b);
+        for z in lo[2]..=hi[2] {
+            for y in lo[1]..=hi[1] {
+                for x in lo[0]..=hi[0] {
+                    f(self.cell_index([x, y, z]));
+                }
+            }
+        }
     }
 
     /// Inclusive cell range a box overlaps, padded by 1/1000 of a cell.

@@ -66,8 +66,8 @@ pub fn run(args: &Args) -> Result<()> {
                 Some(path) => {
                     let m = read_mesh(path)?;
                     Triangulated {
-                        positions: m.positions.clone(),
                         triangles: m.triangles(),
+                        positions: m.positions,
                     }
                 }
                 None => synthetic::uv_sphere(args.triangles, Vec3::ZERO, 1.0),
