@@ -161,3 +161,27 @@ impl Drop for EmbreeScene {
         }
     }
 }
+
+impl crate::engines::Engine for EmbreeScene {
+    fn name(&self) -> &'static str {
+        "embree"
+    }
+    fn build_ms(&self) -> f64 {
+        self.build_ms
+    }
+    fn bytes(&self) -> Option<usize> {
+        usize::try_from(self.bytes).ok()
+    }
+    fn trace(
+        &self,
+        rays: &[[f32; 8]],
+        any: bool,
+        run: &crate::engines::Runner,
+    ) -> (f64, Vec<crate::engines::Answer>) {
+        if any {
+            run.run(rays, |r| self.occluded(r).then_some((0.0, 0)))
+        } else {
+            run.run(rays, |r| self.intersect(r).map(|(t, p, _, _)| (t, p)))
+        }
+    }
+}

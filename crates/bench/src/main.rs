@@ -1,24 +1,30 @@
 //! `raymesh-peers MESH... [--rays RAYS.npy | --workloads LIST --size N]
-//! [--threads LIST] [--repeat R] [--accel A] [--markdown]`: the same rays
-//! through raymesh and, built with `--features embree`, through Intel
-//! Embree 3, in one run: build time, bytes, closest-hit and any-hit
-//! Mrays/s per workload and thread count, ratios, and how far the hits
-//! agree (same triangle, or `t` within 1e-4 relative, as
-//! `../shared/BENCH.md` asks).
+//! [--threads LIST] [--repeat R] [--accel A] [--peers LIST]
+//! [--markdown] [--json] [--chart OUT.png]`: the same rays through raymesh
+//! and its peers, in one run: Intel Embree 3 (built with `--features
+//! embree`) and the Rust crates obvhs, bvh and parry3d. For each engine and
+//! thread count it reports the build time and bytes per triangle; for each
+//! workload, query and thread count, Mrays/s, raymesh's ratio to each
+//! peer, and how far each engine's hits agree with Embree's (same
+//! triangle, or `t` within 1e-4 relative, as `../shared/BENCH.md` asks;
+//! with raymesh's when Embree is not built in).
 
+mod chart;
 #[cfg(feature = "embree")]
 mod embree_peer;
+mod engines;
 
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
 use clap::Parser;
+use engines::{Answer, Engine, Runner, RUST_PEERS};
 use raymesh::npy;
 use raymesh::workload::{make_rays, Workload};
-use raymesh_accel::{AccelKind, Scene, Surface, TriangleMesh, Triangles};
+use raymesh_accel::{AccelKind, Scene, TriangleMesh};
 use raymesh_mesh::io::read_mesh;
-use std::path::PathBuf;
-use std::time::Instant;
+use serde::Serialize;
+use std::path::{Path, PathBuf};
 
-/// Side-by-side ray-query benchmark against Embree.
+/// Side-by-side ray-query benchmark against Embree and the Rust BVH crates.
 #[derive(Parser)]
 struct Args {
     /// Mesh files.
@@ -42,43 +48,112 @@ struct Args {
     /// raymesh structure.
     #[arg(long, default_value = "bvh")]
     accel: AccelKind,
-    /// Print a markdown table as well.
+    /// Peers to run, comma-separated (embree, obvhs, bvh, parry3d), `all`
+    /// (every one built in) or `none`.
+    #[arg(long, default_value = "all")]
+    peers: String,
+    /// Print markdown tables as well.
     #[arg(long)]
     markdown: bool,
+    /// Print JSON lines instead of the text report.
+    #[arg(long)]
+    json: bool,
+    /// Draw Mrays/s per engine as a bar chart (PNG, or SVG by extension).
+    #[arg(long)]
+    chart: Option<PathBuf>,
 }
 
-/// Best time of `repeat` runs of `f`, in seconds, and its last result.
-fn best<T>(repeat: u32, mut f: impl FnMut() -> T) -> (f64, T) {
-    let mut best = f64::INFINITY;
-    let mut out = None;
-    for _ in 0..repeat.max(1) {
-        let t = Instant::now();
-        let r = f();
-        best = best.min(t.elapsed().as_secs_f64());
-        out = Some(r);
-    }
-    (best, out.expect("at least one run"))
+/// One engine's build on one mesh.
+#[derive(Serialize)]
+struct Build {
+    kind: &'static str,
+    mesh: String,
+    engine: &'static str,
+    threads: usize,
+    build_ms: f64,
+    bytes_per_triangle: Option<f64>,
 }
 
-/// Traces every ray on `threads` threads (1024-ray chunks), collecting per-ray results.
-fn trace_all<T: Send>(threads: usize, n: usize, f: impl Fn(usize) -> T + Sync + Send) -> Vec<T> {
-    use rayon::prelude::*;
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .expect("thread pool");
-    pool.install(|| (0..n).into_par_iter().with_min_len(1024).map(f).collect())
-}
-
-/// One measured line.
-struct Line {
+/// One engine's pass over one workload.
+#[derive(Serialize)]
+struct Trace {
+    kind: &'static str,
     mesh: String,
     workload: String,
     threads: usize,
     query: &'static str,
-    raymesh: f64,
-    embree: Option<f64>,
-    agree: Option<f64>,
+    engine: &'static str,
+    mrays_per_s: f64,
+    /// raymesh's Mrays/s over this engine's.
+    raymesh_ratio: f64,
+    /// Share of rays whose answer matches the reference engine's.
+    agree: f64,
+    agree_with: &'static str,
+}
+
+/// The engines to run, reference first: Embree when built in and asked
+/// for, else raymesh.
+fn engine_names(peers: &str) -> Result<Vec<&'static str>> {
+    let built: Vec<&'static str> = cfg!(feature = "embree")
+        .then_some("embree")
+        .into_iter()
+        .chain(RUST_PEERS)
+        .collect();
+    let mut chosen: Vec<&'static str> = match peers.trim() {
+        "all" => built.clone(),
+        "none" => Vec::new(),
+        list => {
+            list.split(',')
+                .map(|p| {
+                    let p = p.trim();
+                    if p == "embree" && !cfg!(feature = "embree") {
+                        bail!("embree is not built in: build with --features embree (README)");
+                    }
+                    built.iter().find(|b| **b == p).copied().with_context(|| {
+                        format!("unknown peer '{p}'; expected {}", built.join(", "))
+                    })
+                })
+                .collect::<Result<_>>()?
+        }
+    };
+    chosen.dedup();
+    let at = usize::from(chosen.first() == Some(&"embree"));
+    chosen.insert(at, "raymesh");
+    Ok(chosen)
+}
+
+fn build_engine(
+    name: &str,
+    accel: AccelKind,
+    positions: &[raymesh_geometry::Vec3],
+    triangles: &[[u32; 3]],
+    threads: usize,
+) -> Box<dyn Engine> {
+    #[cfg(feature = "embree")]
+    if name == "embree" {
+        return Box::new(embree_peer::EmbreeScene::new(positions, triangles, threads));
+    }
+    let _ = threads;
+    engines::build(name, accel, positions, triangles)
+}
+
+/// Whether two answers agree: both miss, or hit the same triangle, or at
+/// `t` within 1e-4 relative.
+fn agrees(a: &Answer, b: &Answer) -> bool {
+    match (a, b) {
+        (None, None) => true,
+        (Some((ta, pa)), Some((tb, pb))) => {
+            pa == pb || (ta - tb).abs() <= 1e-4 * ta.abs().max(tb.abs())
+        }
+        _ => false,
+    }
+}
+
+fn short(path: &Path) -> String {
+    path.file_name().map_or_else(
+        || path.display().to_string(),
+        |f| f.to_string_lossy().into_owned(),
+    )
 }
 
 fn main() -> Result<()> {
@@ -87,37 +162,27 @@ fn main() -> Result<()> {
         .threads
         .split(',')
         .map(|t| t.trim().parse())
-        .collect::<Result<_, _>>()?;
+        .collect::<Result<_, _>>()
+        .context("--threads: a comma-separated list of counts")?;
     if threads.contains(&0) {
         bail!("thread counts must be at least 1");
     }
-    let mut lines = Vec::new();
+    if let Some(chart) = &args.chart {
+        chart::check_path(chart)?;
+    }
+    let names = engine_names(&args.peers)?;
+    let reference = names[0];
+    let mut builds = Vec::new();
+    let mut traces = Vec::new();
     for path in &args.meshes {
         let mesh = read_mesh(path)?;
         let tris = mesh.triangles();
-        let tm = TriangleMesh::new(mesh.positions.clone(), tris.clone());
-        let scene = Scene::build(Triangles::from_mesh(&tm), args.accel);
-        let st = scene.stats();
-        let rm_bytes = (st.bytes + tris.len() * 36) as f64 / tris.len().max(1) as f64;
-        println!("{}: {} triangles", path.display(), tris.len());
-        println!(
-            "  raymesh {:<10} build {:7.1} ms (1 thread)  {:6.1} B/tri",
-            st.name, st.build_ms, rm_bytes
-        );
-        #[cfg(feature = "embree")]
-        let em = {
-            let em = embree_peer::EmbreeScene::new(&mesh.positions, &tris, 1);
-            println!(
-                "  embree  {:<10} build {:7.1} ms (1 thread)  {:6.1} B/tri",
-                "bvh",
-                em.build_ms,
-                em.bytes as f64 / tris.len().max(1) as f64
-            );
-            em
-        };
+        let mesh_name = short(path);
         let workloads: Vec<(String, Vec<[f32; 8]>)> = match &args.rays {
             Some(file) => {
-                let rays = npy::parse_rays(&std::fs::read(file)?)?;
+                let bytes =
+                    std::fs::read(file).with_context(|| format!("reading {}", file.display()))?;
+                let rays = npy::parse_rays(&bytes).with_context(|| file.display().to_string())?;
                 let raw = rays
                     .iter()
                     .map(|r| {
@@ -125,119 +190,315 @@ fn main() -> Result<()> {
                         [o.x, o.y, o.z, r.tmin(), d.x, d.y, d.z, r.tmax()]
                     })
                     .collect();
-                vec![(file.display().to_string(), raw)]
+                vec![(short(file), raw)]
             }
             None => {
-                let reference = Scene::build(tm.clone(), AccelKind::FASTEST_BVH);
+                let tm = TriangleMesh::new(mesh.positions.clone(), tris.clone());
+                let scene = Scene::build(tm, AccelKind::FASTEST_BVH);
                 args.workloads
                     .split(',')
                     .map(|w| {
                         let w: Workload = w.trim().parse().map_err(anyhow::Error::msg)?;
-                        Ok((w.name().to_string(), make_rays(w, &reference, args.size, 1)))
+                        Ok((w.name().to_string(), make_rays(w, &scene, args.size, 1)))
                     })
                     .collect::<Result<_>>()?
             }
         };
-        for (name, raw) in &workloads {
-            let rays: Vec<raymesh_accel::Ray> = raw
-                .iter()
-                .map(|r| {
-                    raymesh_accel::Ray::new(
-                        raymesh_accel::Vec3::new(r[0], r[1], r[2]),
-                        raymesh_accel::Vec3::new(r[4], r[5], r[6]),
-                        r[3],
-                        r[7],
-                    )
-                })
-                .collect();
-            let n = rays.len();
-            for &t in &threads {
-                for any in [false, true] {
-                    let (rm_s, rm_hits): (f64, Vec<Option<(f32, u32)>>) = best(args.repeat, || {
-                        trace_all(t, n, |i| {
-                            let r = &rays[i];
-                            if any {
-                                scene.occluded(r).then_some((0.0, 0))
-                            } else {
-                                scene.intersect(r).map(|h| (h.t, h.prim))
-                            }
-                        })
-                    });
-                    let raymesh = n as f64 / rm_s / 1e6;
-                    #[allow(unused_mut)]
-                    let mut line = Line {
-                        mesh: path.display().to_string(),
-                        workload: name.clone(),
-                        threads: t,
-                        query: if any { "any-hit" } else { "closest" },
-                        raymesh,
-                        embree: None,
-                        agree: None,
-                    };
-                    #[cfg(feature = "embree")]
-                    {
-                        let (em_s, em_hits): (f64, Vec<Option<(f32, u32)>>) =
-                            best(args.repeat, || {
-                                trace_all(t, n, |i| {
-                                    let r = &raw[i];
-                                    if any {
-                                        em.occluded(r).then_some((0.0, 0))
-                                    } else {
-                                        em.intersect(r).map(|(t, p, _, _)| (t, p))
-                                    }
-                                })
-                            });
-                        let agree = rm_hits
-                            .iter()
-                            .zip(&em_hits)
-                            .filter(|(a, b)| match (a, b) {
-                                (None, None) => true,
-                                (Some((ta, pa)), Some((tb, pb))) => {
-                                    pa == pb || (ta - tb).abs() <= 1e-4 * ta.abs().max(tb.abs())
-                                }
-                                _ => false,
-                            })
-                            .count();
-                        line.embree = Some(n as f64 / em_s / 1e6);
-                        line.agree = Some(agree as f64 / n.max(1) as f64);
-                    }
-                    let _ = &rm_hits;
-                    match (line.embree, line.agree) {
-                        (Some(e), Some(a)) => println!(
-                            "  {:<8} {} thr {:<8} raymesh {:6.2}  embree {:6.2} Mrays/s  ratio {:.2}  hits agree on {:.3}% of rays",
-                            line.workload, line.threads, line.query, line.raymesh, e, line.raymesh / e, 100.0 * a
-                        ),
-                        _ => println!("  {:<8} {} thr {:<8} raymesh {:6.2} Mrays/s", line.workload, line.threads, line.query, line.raymesh),
-                    }
-                    lines.push(line);
+        if !args.json {
+            println!(
+                "{}: {} triangles; {}",
+                path.display(),
+                tris.len(),
+                workloads
+                    .iter()
+                    .map(|(w, r)| format!("{w} {} rays", r.len()))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
+        }
+        for &t in &threads {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(t)
+                .build()
+                .context("thread pool")?;
+            let run = Runner {
+                pool: &pool,
+                repeat: args.repeat,
+            };
+            // The reference's answers per (workload, query), then each
+            // engine in turn: built, traced, compared, dropped.
+            let mut reference_answers: Vec<Vec<Answer>> = Vec::new();
+            let mut rates: Vec<(&'static str, Vec<f64>)> = Vec::new();
+            for &name in &names {
+                // Best of R builds (the first of a process pays for its
+                // allocator and thread start-up); the last one is traced.
+                let build = || build_engine(name, args.accel, &mesh.positions, &tris, t);
+                let mut engine = pool.install(build);
+                let mut build_ms = engine.build_ms();
+                for _ in 1..args.repeat {
+                    drop(engine);
+                    engine = pool.install(build);
+                    build_ms = build_ms.min(engine.build_ms());
                 }
+                builds.push(Build {
+                    kind: "build",
+                    mesh: mesh_name.clone(),
+                    engine: engine.name(),
+                    threads: t,
+                    build_ms,
+                    bytes_per_triangle: engine.bytes().map(|b| b as f64 / tris.len().max(1) as f64),
+                });
+                let mut mine = Vec::new();
+                let mut k = 0;
+                for (workload, rays) in &workloads {
+                    for any in [false, true] {
+                        let (secs, answers) = engine.trace(rays, any, &run);
+                        let agree = if name == reference {
+                            reference_answers.push(answers);
+                            1.0
+                        } else {
+                            let same = answers
+                                .iter()
+                                .zip(&reference_answers[k])
+                                .filter(|(a, b)| agrees(a, b))
+                                .count();
+                            same as f64 / rays.len().max(1) as f64
+                        };
+                        let mrays = rays.len() as f64 / secs / 1e6;
+                        mine.push(mrays);
+                        traces.push(Trace {
+                            kind: "trace",
+                            mesh: mesh_name.clone(),
+                            workload: workload.clone(),
+                            threads: t,
+                            query: if any { "any-hit" } else { "closest" },
+                            engine: name,
+                            mrays_per_s: mrays,
+                            raymesh_ratio: f64::NAN,
+                            agree,
+                            agree_with: reference,
+                        });
+                        k += 1;
+                    }
+                }
+                rates.push((name, mine));
             }
+            // raymesh's ratio to each engine, now that all have run.
+            let raymesh = rates
+                .iter()
+                .find(|(n, _)| *n == "raymesh")
+                .map(|(_, r)| r.clone())
+                .expect("raymesh always runs");
+            let per_engine = workloads.len() * 2;
+            let first = traces.len() - per_engine * names.len();
+            for (i, tr) in traces[first..].iter_mut().enumerate() {
+                tr.raymesh_ratio = raymesh[i % per_engine] / tr.mrays_per_s;
+            }
+            if !args.json {
+                report(
+                    &builds[builds.len() - names.len()..],
+                    &traces[first..],
+                    reference,
+                );
+            }
+        }
+    }
+    if args.json {
+        for b in &builds {
+            println!("{}", serde_json::to_string(b)?);
+        }
+        for t in &traces {
+            println!("{}", serde_json::to_string(t)?);
         }
     }
     if args.markdown {
-        println!("\n| mesh | workload | threads | query | raymesh Mrays/s | Embree Mrays/s | ratio | hits agree |");
-        println!("| --- | --- | --- | --- | --- | --- | --- | --- |");
-        for l in &lines {
-            let mesh = std::path::Path::new(&l.mesh)
-                .file_name()
-                .map_or(l.mesh.clone(), |f| f.to_string_lossy().into_owned());
-            match (l.embree, l.agree) {
-                (Some(e), Some(a)) => println!(
-                    "| {mesh} | {} | {} | {} | {:.2} | {:.2} | {:.2} | {:.3}% |",
-                    l.workload,
-                    l.threads,
-                    l.query,
-                    l.raymesh,
-                    e,
-                    l.raymesh / e,
-                    100.0 * a
-                ),
-                _ => println!(
-                    "| {mesh} | {} | {} | {} | {:.2} | | | |",
-                    l.workload, l.threads, l.query, l.raymesh
-                ),
-            }
+        markdown(&names, &builds, &traces, &threads);
+    }
+    if let Some(path) = &args.chart {
+        chart::draw(path, &names, &traces)?;
+        if !args.json {
+            println!("chart: {}", path.display());
         }
     }
     Ok(())
+}
+
+/// The text report of one mesh at one thread count.
+fn report(builds: &[Build], traces: &[Trace], reference: &str) {
+    let t = builds[0].threads;
+    let line = builds
+        .iter()
+        .map(|b| match b.bytes_per_triangle {
+            Some(bytes) => format!("{} {:.1} ms, {bytes:.1} B/tri", b.engine, b.build_ms),
+            None => format!("{} {:.1} ms", b.engine, b.build_ms),
+        })
+        .collect::<Vec<_>>()
+        .join(" | ");
+    println!("  build, {t} thread(s): {line}");
+    let cases: Vec<(&str, &str)> = traces
+        .iter()
+        .filter(|tr| tr.engine == "raymesh")
+        .map(|tr| (tr.workload.as_str(), tr.query))
+        .collect();
+    for (workload, query) in cases {
+        let row: Vec<&Trace> = traces
+            .iter()
+            .filter(|tr| tr.workload == workload && tr.query == query)
+            .collect();
+        let speeds = row
+            .iter()
+            .map(|tr| format!("{} {}", tr.engine, raymesh::rate(tr.mrays_per_s)))
+            .collect::<Vec<_>>()
+            .join(" | ");
+        println!("  {workload:<8} {t} thr {query:<8} Mrays/s: {speeds}");
+        let ratios = row
+            .iter()
+            .filter(|tr| tr.engine != "raymesh")
+            .map(|tr| format!("{} {:.2}", tr.engine, tr.raymesh_ratio))
+            .collect::<Vec<_>>()
+            .join(" | ");
+        if !ratios.is_empty() {
+            println!("  {:<23} raymesh / peer: {ratios}", "");
+        }
+        let agree = row
+            .iter()
+            .filter(|tr| tr.engine != reference)
+            .map(|tr| format!("{} {:.3}%", tr.engine, 100.0 * tr.agree))
+            .collect::<Vec<_>>()
+            .join(" | ");
+        if !agree.is_empty() {
+            println!("  {:<23} hits agree with {reference}: {agree}", "");
+        }
+    }
+}
+
+/// Markdown tables: builds, Mrays/s with raymesh's ratios, and agreement.
+fn markdown(names: &[&str], builds: &[Build], traces: &[Trace], threads: &[usize]) {
+    let peers: Vec<&str> = names.iter().copied().filter(|n| *n != "raymesh").collect();
+    println!(
+        "\n| mesh | threads | {} |",
+        names
+            .iter()
+            .map(|n| format!("{n} build ms"))
+            .collect::<Vec<_>>()
+            .join(" | ")
+    );
+    println!("| --- | --- |{}", " --- |".repeat(names.len()));
+    let mut keys: Vec<(String, usize)> =
+        builds.iter().map(|b| (b.mesh.clone(), b.threads)).collect();
+    keys.dedup();
+    for (mesh, t) in &keys {
+        let cells: Vec<String> = names
+            .iter()
+            .map(|n| {
+                builds
+                    .iter()
+                    .find(|b| &b.mesh == mesh && b.threads == *t && b.engine == *n)
+                    .map_or(String::new(), |b| format!("{:.1}", b.build_ms))
+            })
+            .collect();
+        println!("| {mesh} | {t} | {} |", cells.join(" | "));
+    }
+    println!("\n| mesh | engine | bytes/triangle |");
+    println!("| --- | --- | --- |");
+    for b in builds.iter().filter(|b| b.threads == threads[0]) {
+        let bytes = b
+            .bytes_per_triangle
+            .map_or("not reported".to_string(), |x| format!("{x:.1}"));
+        println!("| {} | {} | {bytes} |", b.mesh, b.engine);
+    }
+    println!(
+        "\n| mesh | workload | threads | query | {} | {} |",
+        names
+            .iter()
+            .map(|n| format!("{n} Mrays/s"))
+            .collect::<Vec<_>>()
+            .join(" | "),
+        peers
+            .iter()
+            .map(|p| format!("raymesh / {p}"))
+            .collect::<Vec<_>>()
+            .join(" | ")
+    );
+    println!(
+        "| --- | --- | --- | --- |{}",
+        " --- |".repeat(names.len() + peers.len())
+    );
+    for tr in traces.iter().filter(|tr| tr.engine == "raymesh") {
+        let same = |tr2: &&Trace| {
+            tr2.mesh == tr.mesh
+                && tr2.workload == tr.workload
+                && tr2.threads == tr.threads
+                && tr2.query == tr.query
+        };
+        let row: Vec<&Trace> = traces.iter().filter(same).collect();
+        let speed = |n: &str| {
+            row.iter()
+                .find(|r| r.engine == n)
+                .map_or(String::new(), |r| raymesh::rate(r.mrays_per_s))
+        };
+        let ratio = |n: &str| {
+            row.iter()
+                .find(|r| r.engine == n)
+                .map_or(String::new(), |r| format!("{:.2}", r.raymesh_ratio))
+        };
+        println!(
+            "| {} | {} | {} | {} | {} | {} |",
+            tr.mesh,
+            tr.workload,
+            tr.threads,
+            tr.query,
+            names
+                .iter()
+                .map(|n| speed(n))
+                .collect::<Vec<_>>()
+                .join(" | "),
+            peers
+                .iter()
+                .map(|n| ratio(n))
+                .collect::<Vec<_>>()
+                .join(" | ")
+        );
+    }
+    let reference = names[0];
+    let others: Vec<&str> = names.iter().copied().filter(|n| *n != reference).collect();
+    if others.is_empty() {
+        return;
+    }
+    println!(
+        "\n| mesh | workload | query | {} |",
+        others
+            .iter()
+            .map(|n| format!("{n}: hits agree with {reference}"))
+            .collect::<Vec<_>>()
+            .join(" | ")
+    );
+    println!("| --- | --- | --- |{}", " --- |".repeat(others.len()));
+    for tr in traces
+        .iter()
+        .filter(|tr| tr.engine == reference && tr.threads == threads[0])
+    {
+        let cells: Vec<String> = others
+            .iter()
+            .map(|n| {
+                traces
+                    .iter()
+                    .find(|r| {
+                        r.engine == *n
+                            && r.mesh == tr.mesh
+                            && r.workload == tr.workload
+                            && r.threads == tr.threads
+                            && r.query == tr.query
+                    })
+                    .map_or(String::new(), |r| format!("{:.3}%", 100.0 * r.agree))
+            })
+            .collect();
+        println!(
+            "| {} | {} | {} | {} |",
+            tr.mesh,
+            tr.workload,
+            tr.query,
+            cells.join(" | ")
+        );
+    }
 }

@@ -11,8 +11,7 @@ mod wide;
 pub use build::BvhBuilder;
 #[cfg(test)]
 pub(crate) use wide::slab_scalar;
-pub(crate) use wide::BoxRay;
-pub use wide::{Bvh4, Bvh8, Node4, Node8, WideBvh, WideNode};
+pub use wide::{BoxRay, Bvh4, Bvh8, Node4, Node8, WideBvh, WideNode};
 
 use crate::{AccelStats, Leaf, RayCounter};
 use raymesh_geometry::{cull_bound, Aabb, Ray, Vec3};

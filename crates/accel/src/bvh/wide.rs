@@ -74,6 +74,41 @@ impl<const W: usize> WideNode<W> {
         }
     }
 
+    /// A node whose first children have `boxes` (at most `W`; the rest
+    /// empty) and point nowhere: for testing and benchmarking the node
+    /// test on its own ([`Self::slab`]).
+    ///
+    /// # Panics
+    /// If more than `W` boxes are given.
+    #[must_use]
+    pub fn from_boxes(boxes: &[Aabb]) -> Self {
+        assert!(boxes.len() <= W, "a {W}-wide node holds at most {W} boxes");
+        let mut n = Self::EMPTY;
+        for (i, b) in boxes.iter().enumerate() {
+            n.set_box(i, *b);
+            n.child[i] = 0;
+            n.count[i] = 1;
+        }
+        n
+    }
+
+    /// One traversal step: the slab test of all `W` child boxes against a
+    /// ray, clipped to `[ray's tmin, tmax]`. Returns a bit per child the ray
+    /// enters and each child's entry distance. Uses the AVX2 kernel for
+    /// 8-wide nodes where the CPU has it and [`crate::set_simd_enabled`]
+    /// allows it, the portable loop otherwise (bit-identical results).
+    #[must_use]
+    pub fn slab(&self, ray: &BoxRay, tmax: f32) -> (u32, [f32; W]) {
+        let mut t = [0.0f32; W];
+        let bound = cull_bound(tmax);
+        #[cfg(target_arch = "x86_64")]
+        if W == 8 && simd::has_avx2() {
+            let mask = simd::with_avx2(|| simd::slab8(self, ray, bound, &mut t));
+            return (mask, t);
+        }
+        (slab_scalar(self, ray, bound, &mut t), t)
+    }
+
     fn child_box(&self, i: usize) -> Aabb {
         Aabb::new(
             Vec3::new(self.min[0][i], self.min[1][i], self.min[2][i]),
@@ -360,9 +395,10 @@ impl<const W: usize> WideBvh<W> {
 }
 
 /// What a node test needs of a ray: origin, reciprocal direction, which
-/// axes run backwards (so the near plane is the box's max), and `tmin`.
+/// axes run backwards (so the near plane is the box's max), and `tmin`;
+/// computed once per ray, before the traversal.
 #[derive(Clone, Copy, Debug)]
-pub(crate) struct BoxRay {
+pub struct BoxRay {
     pub(crate) origin: [f32; 3],
     pub(crate) inv_dir: [f32; 3],
     pub(crate) neg: [bool; 3],
@@ -370,7 +406,9 @@ pub(crate) struct BoxRay {
 }
 
 impl BoxRay {
-    pub(crate) fn new(ray: &Ray) -> Self {
+    /// The node-test form of `ray`.
+    #[must_use]
+    pub fn new(ray: &Ray) -> Self {
         let oct = ray.octant();
         Self {
             origin: ray.origin().to_array(),
@@ -475,5 +513,51 @@ impl Stack {
         }
         self.len -= 1;
         Some(self.items[self.len])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The public node test agrees with the one-box slab test on every
+    /// child, with the SIMD kernels on and off, empty slots never entered.
+    #[test]
+    fn node_slab_matches_the_box_slab_test() {
+        let mut seed = 1u64;
+        let mut f = move || {
+            seed = seed
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (seed >> 40) as f32 / (1u64 << 24) as f32 * 4.0 - 2.0
+        };
+        for _ in 0..500 {
+            let boxes: Vec<Aabb> = (0..6)
+                .map(|_| {
+                    let p = Vec3::new(f(), f(), f());
+                    Aabb::new(p, p + Vec3::new(f().abs(), f().abs(), f().abs()))
+                })
+                .collect();
+            let node = Node8::from_boxes(&boxes);
+            let mut d = Vec3::new(f(), f(), f());
+            if f() > 1.0 {
+                d.x = 0.0; // axis-parallel rays too
+            }
+            let ray = Ray::new(Vec3::new(f(), f(), f()) * 3.0, d, 0.0, f32::INFINITY);
+            let tmax = f().abs() * 4.0;
+            for simd in [true, false] {
+                crate::set_simd_enabled(simd);
+                let (mask, t) = node.slab(&BoxRay::new(&ray), tmax);
+                crate::set_simd_enabled(true);
+                for (i, b) in boxes.iter().enumerate() {
+                    let want = b.intersect_ray(&ray, tmax);
+                    assert_eq!(mask >> i & 1 == 1, want.is_some(), "box {i}, simd {simd}");
+                    if let Some((entry, _)) = want {
+                        assert_eq!(t[i].to_bits(), entry.to_bits(), "box {i}, simd {simd}");
+                    }
+                }
+                assert_eq!(mask >> 6, 0, "empty slots are never entered");
+            }
+        }
     }
 }

@@ -1,0 +1,527 @@
+//! The engines a benchmark run compares, behind one small interface:
+//! raymesh itself, and the Rust crates obvhs, bvh and parry3d as their
+//! users would call them (Embree lives in `embree_peer`, behind a feature).
+//!
+//! Every engine gets the mesh as indexed triangles and BENCH.md's packed
+//! rays `[ox, oy, oz, tmin, dx, dy, dz, tmax]`, converts them to its own
+//! types before the clock starts, and answers closest-hit queries with
+//! `(t, triangle index in the input)` and any-hit queries with a flag.
+
+use raymesh_accel::{AccelKind, Primitives, Scene, Surface, TriangleMesh, Triangles};
+use raymesh_geometry::Vec3;
+use rayon::prelude::*;
+use rayon::ThreadPool;
+use std::time::Instant;
+
+/// One query's answer: the closest hit's `t` and triangle, or for any-hit
+/// queries `(0, 0)` when something was hit.
+pub type Answer = Option<(f32, u32)>;
+
+/// Runs timed passes over a ray set on a fixed thread pool.
+pub struct Runner<'a> {
+    /// The pool every pass runs on.
+    pub pool: &'a ThreadPool,
+    /// Passes; the best is reported.
+    pub repeat: u32,
+}
+
+impl Runner<'_> {
+    /// Best time of `repeat` passes of `f` over every ray (1,024-ray
+    /// chunks on the pool), in seconds, and the last pass's answers.
+    pub fn run<R: Sync>(&self, rays: &[R], f: impl Fn(&R) -> Answer + Sync) -> (f64, Vec<Answer>) {
+        let mut best = f64::INFINITY;
+        let mut out = Vec::new();
+        for _ in 0..self.repeat.max(1) {
+            let start = Instant::now();
+            out = self
+                .pool
+                .install(|| rays.par_iter().with_min_len(1024).map(&f).collect());
+            best = best.min(start.elapsed().as_secs_f64());
+        }
+        (best, out)
+    }
+}
+
+/// A ray-tracing engine built over one mesh.
+pub trait Engine: Send + Sync {
+    /// Short name for tables.
+    fn name(&self) -> &'static str;
+    /// Milliseconds its build took, from indexed triangles to a structure
+    /// ready to trace (its own copies of the triangles included).
+    fn build_ms(&self) -> f64;
+    /// Bytes its structure holds (triangle copies included, the caller's
+    /// mesh apart), where the engine tells.
+    fn bytes(&self) -> Option<usize>;
+    /// Traces every ray for the closest hit (`any == false`) or any hit.
+    fn trace(&self, rays: &[[f32; 8]], any: bool, run: &Runner) -> (f64, Vec<Answer>);
+}
+
+/// Which engines to run, by name.
+pub const RUST_PEERS: [&str; 3] = ["obvhs", "bvh", "parry3d"];
+
+/// Builds the named engine over the mesh on the current thread pool
+/// (callers `install` the pool whose thread count they measure).
+pub fn build(
+    name: &str,
+    accel: AccelKind,
+    positions: &[Vec3],
+    triangles: &[[u32; 3]],
+) -> Box<dyn Engine> {
+    match name {
+        "raymesh" => Box::new(Raymesh::new(accel, positions, triangles)),
+        "obvhs" => Box::new(Obvhs::new(positions, triangles)),
+        "bvh" => Box::new(BvhCrate::new(positions, triangles)),
+        "parry3d" => Box::new(Parry::new(positions, triangles)),
+        other => unreachable!("unknown engine {other}"),
+    }
+}
+
+fn unpack(r: &[f32; 8]) -> raymesh_accel::Ray {
+    raymesh_accel::Ray::new(
+        Vec3::new(r[0], r[1], r[2]),
+        Vec3::new(r[4], r[5], r[6]),
+        r[3],
+        r[7],
+    )
+}
+
+/// raymesh's scene over its fastest layout for the chosen structure.
+pub struct Raymesh {
+    scene: Scene<Triangles>,
+    build_ms: f64,
+}
+
+impl Raymesh {
+    fn new(accel: AccelKind, positions: &[Vec3], triangles: &[[u32; 3]]) -> Self {
+        // The mesh in raymesh's type stands for the caller's (which Embree
+        // shares); making it is not part of the build. Gathering the
+        // triangle rows is.
+        let tm = TriangleMesh::new(positions.to_vec(), triangles.to_vec());
+        let start = Instant::now();
+        let scene = Scene::build(Triangles::from_mesh(&tm), accel);
+        Self {
+            scene,
+            build_ms: start.elapsed().as_secs_f64() * 1e3,
+        }
+    }
+}
+
+impl Engine for Raymesh {
+    fn name(&self) -> &'static str {
+        "raymesh"
+    }
+    fn build_ms(&self) -> f64 {
+        self.build_ms
+    }
+    fn bytes(&self) -> Option<usize> {
+        // The structure plus its triangle rows (9 floats per triangle).
+        Some(self.scene.stats().bytes + self.scene.prims().len() * 36)
+    }
+    fn trace(&self, rays: &[[f32; 8]], any: bool, run: &Runner) -> (f64, Vec<Answer>) {
+        let rays: Vec<_> = rays.iter().map(unpack).collect();
+        if any {
+            run.run(&rays, |r| self.scene.occluded(r).then_some((0.0, 0)))
+        } else {
+            run.run(&rays, |r| self.scene.intersect(r).map(|h| (h.t, h.prim)))
+        }
+    }
+}
+
+/// obvhs's compressed 8-wide BVH (Ylitie et al. 2017), built from its
+/// PLOC builder at its "medium" preset, over its own triangles in leaf
+/// order (as its examples recommend), tested with its Möller–Trumbore.
+pub struct Obvhs {
+    bvh: obvhs::cwbvh::CwBvh,
+    tris: Vec<obvhs::triangle::Triangle>,
+    build_ms: f64,
+}
+
+impl Obvhs {
+    fn new(positions: &[Vec3], triangles: &[[u32; 3]]) -> Self {
+        use glam::Vec3A;
+        let start = Instant::now();
+        let p = |i: u32| Vec3A::from_array(positions[i as usize].to_array());
+        let tris: Vec<obvhs::triangle::Triangle> = triangles
+            .iter()
+            .map(|&[a, b, c]| obvhs::triangle::Triangle {
+                v0: p(a),
+                v1: p(b),
+                v2: p(c),
+            })
+            .collect();
+        let bvh = obvhs::cwbvh::builder::build_cwbvh_from_tris(
+            &tris,
+            obvhs::BvhBuildParams::medium_build(),
+            &mut std::time::Duration::default(),
+        );
+        let tris = bvh
+            .primitive_indices
+            .iter()
+            .map(|&i| tris[i as usize])
+            .collect();
+        Self {
+            bvh,
+            tris,
+            build_ms: start.elapsed().as_secs_f64() * 1e3,
+        }
+    }
+}
+
+impl Engine for Obvhs {
+    fn name(&self) -> &'static str {
+        "obvhs"
+    }
+    fn build_ms(&self) -> f64 {
+        self.build_ms
+    }
+    fn bytes(&self) -> Option<usize> {
+        Some(
+            std::mem::size_of_val(self.bvh.nodes.as_slice())
+                + std::mem::size_of_val(self.bvh.primitive_indices.as_slice())
+                + std::mem::size_of_val(self.tris.as_slice()),
+        )
+    }
+    fn trace(&self, rays: &[[f32; 8]], any: bool, run: &Runner) -> (f64, Vec<Answer>) {
+        use glam::Vec3A;
+        let rays: Vec<obvhs::ray::Ray> = rays
+            .iter()
+            .map(|r| {
+                obvhs::ray::Ray::new(
+                    Vec3A::new(r[0], r[1], r[2]),
+                    Vec3A::new(r[4], r[5], r[6]),
+                    r[3],
+                    r[7],
+                )
+            })
+            .collect();
+        if any {
+            run.run(&rays, |r| {
+                let miss = self
+                    .bvh
+                    .ray_traverse_miss(*r, |ray, id| self.tris[id].intersect(ray));
+                (!miss).then_some((0.0, 0))
+            })
+        } else {
+            run.run(&rays, |r| {
+                let mut hit = obvhs::ray::RayHit::none();
+                self.bvh
+                    .ray_traverse(*r, &mut hit, |ray, id| self.tris[id].intersect(ray))
+                    .then(|| {
+                        let prim = self.bvh.primitive_indices[hit.primitive_id as usize];
+                        (hit.t, prim)
+                    })
+            })
+        }
+    }
+}
+
+/// A triangle for the `bvh` crate, which wants nalgebra points and a node
+/// index slot per shape.
+struct BvhTri {
+    p: [nalgebra::Point3<f32>; 3],
+    node: usize,
+}
+
+impl bvh::aabb::Bounded<f32, 3> for BvhTri {
+    fn aabb(&self) -> bvh::aabb::Aabb<f32, 3> {
+        bvh::aabb::Aabb::empty()
+            .grow(&self.p[0])
+            .grow(&self.p[1])
+            .grow(&self.p[2])
+    }
+}
+
+impl bvh::bounding_hierarchy::BHShape<f32, 3> for BvhTri {
+    fn set_bh_node_index(&mut self, index: usize) {
+        self.node = index;
+    }
+    fn bh_node_index(&self) -> usize {
+        self.node
+    }
+}
+
+/// Two-sided Möller–Trumbore (1997): the `bvh` crate's own triangle test
+/// culls back faces, which would make its closest hits differ from every
+/// other engine's, so its structure is measured with this one.
+fn moller_trumbore(o: Vec3, d: Vec3, p: &[nalgebra::Point3<f32>; 3], tmin: f32, tmax: f32) -> f32 {
+    let v = |q: &nalgebra::Point3<f32>| Vec3::new(q.x, q.y, q.z);
+    let (a, b, c) = (v(&p[0]), v(&p[1]), v(&p[2]));
+    let (e1, e2) = (b - a, c - a);
+    let pv = d.cross(e2);
+    let det = e1.dot(pv);
+    if det == 0.0 || !det.is_finite() {
+        return f32::INFINITY;
+    }
+    let inv = 1.0 / det;
+    let s = o - a;
+    let u = s.dot(pv) * inv;
+    if !(0.0..=1.0).contains(&u) {
+        return f32::INFINITY;
+    }
+    let q = s.cross(e1);
+    let w = d.dot(q) * inv;
+    if !(w >= 0.0 && u + w <= 1.0) {
+        return f32::INFINITY;
+    }
+    let t = e2.dot(q) * inv;
+    if t >= tmin && t <= tmax {
+        t
+    } else {
+        f32::INFINITY
+    }
+}
+
+/// The `bvh` crate's binary SAH BVH (built in parallel with its rayon
+/// executor on more than one thread), traversed nearest box first with its
+/// distance iterator for closest hits and with its plain iterator for any
+/// hit.
+pub struct BvhCrate {
+    bvh: bvh::bvh::Bvh<f32, 3>,
+    shapes: Vec<BvhTri>,
+    build_ms: f64,
+}
+
+impl BvhCrate {
+    fn new(positions: &[Vec3], triangles: &[[u32; 3]]) -> Self {
+        let start = Instant::now();
+        let p = |i: u32| {
+            let q = positions[i as usize];
+            nalgebra::Point3::new(q.x, q.y, q.z)
+        };
+        let mut shapes: Vec<BvhTri> = triangles
+            .iter()
+            .map(|&[a, b, c]| BvhTri {
+                p: [p(a), p(b), p(c)],
+                node: 0,
+            })
+            .collect();
+        let bvh = if rayon::current_num_threads() > 1 {
+            bvh::bvh::Bvh::build_with_executor(&mut shapes, bvh::bvh::rayon_executor)
+        } else {
+            bvh::bvh::Bvh::build(&mut shapes)
+        };
+        Self {
+            bvh,
+            shapes,
+            build_ms: start.elapsed().as_secs_f64() * 1e3,
+        }
+    }
+
+    fn ray(r: &[f32; 8]) -> bvh::ray::Ray<f32, 3> {
+        // The crate's rays start at t = 0: move the origin to tmin.
+        let o = nalgebra::Point3::new(r[0], r[1], r[2]);
+        let d = nalgebra::Vector3::new(r[4], r[5], r[6]);
+        bvh::ray::Ray::new(o + d * r[3], d)
+    }
+}
+
+impl Engine for BvhCrate {
+    fn name(&self) -> &'static str {
+        "bvh"
+    }
+    fn build_ms(&self) -> f64 {
+        self.build_ms
+    }
+    fn bytes(&self) -> Option<usize> {
+        Some(
+            std::mem::size_of_val(self.bvh.nodes.as_slice())
+                + std::mem::size_of_val(self.shapes.as_slice()),
+        )
+    }
+    fn trace(&self, rays: &[[f32; 8]], any: bool, run: &Runner) -> (f64, Vec<Answer>) {
+        let rays: Vec<(bvh::ray::Ray<f32, 3>, f32, f32)> =
+            rays.iter().map(|r| (Self::ray(r), r[3], r[7])).collect();
+        let test = |ray: &bvh::ray::Ray<f32, 3>, tri: &BvhTri, tmax: f32| {
+            let o = Vec3::new(ray.origin.x, ray.origin.y, ray.origin.z);
+            let d = Vec3::new(ray.direction.x, ray.direction.y, ray.direction.z);
+            moller_trumbore(o, d, &tri.p, 0.0, tmax)
+        };
+        let index = |tri: &BvhTri| {
+            // Shapes keep their order; the reference's offset is the index.
+            (std::ptr::from_ref(tri) as usize - self.shapes.as_ptr() as usize)
+                / std::mem::size_of::<BvhTri>()
+        };
+        if any {
+            run.run(&rays, |(ray, tmin, tmax)| {
+                let limit = tmax - tmin;
+                self.bvh
+                    .traverse_iterator(ray, &self.shapes)
+                    .any(|tri| test(ray, tri, limit).is_finite())
+                    .then_some((0.0, 0))
+            })
+        } else {
+            use bvh::aabb::Bounded;
+            run.run(&rays, |(ray, tmin, tmax)| {
+                let mut best = tmax - tmin;
+                let mut hit = None;
+                for tri in self.bvh.nearest_traverse_iterator(ray, &self.shapes) {
+                    // Boxes come nearest first: stop at one beyond the hit.
+                    match ray.intersection_slice_for_aabb(&tri.aabb()) {
+                        Some((entry, _)) if entry > best => break,
+                        _ => {}
+                    }
+                    let t = test(ray, tri, best);
+                    if t.is_finite() && (hit.is_none() || t < best) {
+                        best = t;
+                        hit = Some(index(tri) as u32);
+                    }
+                }
+                hit.map(|p| (best + tmin, p))
+            })
+        }
+    }
+}
+
+/// parry3d's triangle mesh and its BVH, queried with its own ray casts.
+pub struct Parry {
+    mesh: parry3d::shape::TriMesh,
+    build_ms: f64,
+}
+
+impl Parry {
+    fn new(positions: &[Vec3], triangles: &[[u32; 3]]) -> Self {
+        let start = Instant::now();
+        let vertices = positions
+            .iter()
+            .map(|p| parry3d::math::Vector::new(p.x, p.y, p.z))
+            .collect();
+        let mesh = parry3d::shape::TriMesh::new(vertices, triangles.to_vec())
+            .expect("parry3d accepts the mesh");
+        Self {
+            mesh,
+            build_ms: start.elapsed().as_secs_f64() * 1e3,
+        }
+    }
+}
+
+impl Engine for Parry {
+    fn name(&self) -> &'static str {
+        "parry3d"
+    }
+    fn build_ms(&self) -> f64 {
+        self.build_ms
+    }
+    fn bytes(&self) -> Option<usize> {
+        None
+    }
+    fn trace(&self, rays: &[[f32; 8]], any: bool, run: &Runner) -> (f64, Vec<Answer>) {
+        use parry3d::query::{Ray, RayCast};
+        use parry3d::shape::CompositeShapeRef;
+        // parry's rays start at t = 0: move the origin to tmin.
+        let rays: Vec<(Ray, f32, f32)> = rays
+            .iter()
+            .map(|r| {
+                let d = parry3d::math::Vector::new(r[4], r[5], r[6]);
+                let o = parry3d::math::Vector::new(r[0], r[1], r[2]) + d * r[3];
+                (Ray::new(o, d), r[3], r[7])
+            })
+            .collect();
+        if any {
+            run.run(&rays, |(ray, tmin, tmax)| {
+                self.mesh
+                    .intersects_local_ray(ray, tmax - tmin)
+                    .then_some((0.0, 0))
+            })
+        } else {
+            run.run(&rays, |(ray, tmin, tmax)| {
+                CompositeShapeRef(&self.mesh)
+                    .cast_local_ray(ray, tmax - tmin, true)
+                    .map(|(prim, t)| (t + tmin, prim))
+            })
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use raymesh::workload::{make_rays, Workload};
+
+    /// Every Rust peer, wired as the benchmark wires it, answers as raymesh
+    /// does on real meshes: the same triangle or the same `t` (their
+    /// Möller–Trumbore tests are not watertight, so a ray through an edge
+    /// may differ; allow one ray in a thousand), on one and two threads, with
+    /// rays clipped to `[tmin, tmax]` windows.
+    #[test]
+    fn peers_agree_with_raymesh() {
+        let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/../../tests/data");
+        for file in ["elephant-with-holes.off", "double-torus-example.off"] {
+            let mesh = raymesh_mesh::io::read_mesh(format!("{dir}/{file}")).expect("test mesh");
+            let tris = mesh.triangles();
+            let reference = build("raymesh", AccelKind::FASTEST_BVH, &mesh.positions, &tris);
+            let scene = Scene::build(
+                TriangleMesh::new(mesh.positions.clone(), tris.clone()),
+                AccelKind::FASTEST_BVH,
+            );
+            for threads in [1, 2] {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .expect("pool");
+                let run = Runner {
+                    pool: &pool,
+                    repeat: 1,
+                };
+                for w in [Workload::Random, Workload::Diffuse, Workload::Shadow] {
+                    let mut rays = make_rays(w, &scene, 48, 3);
+                    // Clip every other random ray to a window around the
+                    // mesh's middle, so that tmin and tmax matter.
+                    if w == Workload::Random {
+                        let c = scene.bounds().centroid();
+                        for r in rays.iter_mut().step_by(2) {
+                            let (o, d) = (Vec3::new(r[0], r[1], r[2]), Vec3::new(r[4], r[5], r[6]));
+                            let mid = (c - o).dot(d) / d.length_squared();
+                            (r[3], r[7]) = (0.9 * mid, 1.1 * mid);
+                        }
+                    }
+                    for any in [false, true] {
+                        let (_, want) = reference.trace(&rays, any, &run);
+                        let hits = want.iter().filter(|a| a.is_some()).count();
+                        if w == Workload::Random {
+                            assert!(hits > rays.len() / 10, "{file}: too few hits to test");
+                        }
+                        for name in RUST_PEERS {
+                            let peer = pool.install(|| {
+                                build(name, AccelKind::FASTEST_BVH, &mesh.positions, &tris)
+                            });
+                            let (_, got) = peer.trace(&rays, any, &run);
+                            // The same triangle, and t within 1e-4 relative.
+                            let same = |a: &Answer, b: &Answer| match (a, b) {
+                                (Some((ta, pa)), Some((tb, pb))) => {
+                                    pa == pb && (ta - tb).abs() <= 1e-4 * ta.abs().max(tb.abs())
+                                }
+                                _ => a == b,
+                            };
+                            let differ = got.iter().zip(&want).filter(|(a, b)| !same(a, b)).count();
+                            assert!(
+                                differ * 1000 <= rays.len(),
+                                "{name} on {file}, {w:?}, any-hit {any}, {threads} threads: \
+                                 {differ} of {} rays differ",
+                                rays.len()
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// The two-sided test finds hits from both sides, inside `[tmin, tmax]` only.
+    #[test]
+    fn moller_trumbore_is_two_sided_and_bounded() {
+        let p = [
+            nalgebra::Point3::new(0.0, 0.0, 0.0),
+            nalgebra::Point3::new(1.0, 0.0, 0.0),
+            nalgebra::Point3::new(0.0, 1.0, 0.0),
+        ];
+        let (o, d) = (Vec3::new(0.25, 0.25, 1.0), Vec3::new(0.0, 0.0, -1.0));
+        assert_eq!(moller_trumbore(o, d, &p, 0.0, f32::INFINITY), 1.0);
+        assert_eq!(
+            moller_trumbore(-o + Vec3::new(0.5, 0.5, 0.0), -d, &p, 0.0, 9.0),
+            1.0
+        );
+        assert!(moller_trumbore(o, d, &p, 0.0, 0.5).is_infinite());
+        assert!(moller_trumbore(o, d, &p, 1.5, 9.0).is_infinite());
+        assert!(moller_trumbore(Vec3::new(2.0, 2.0, 1.0), d, &p, 0.0, 9.0).is_infinite());
+    }
+}
