@@ -1,7 +1,6 @@
 //! `raymesh info FILE [--json]`.
 
 use anyhow::Result;
-use raymesh_mesh::io::read_mesh;
 use serde::Serialize;
 use std::path::PathBuf;
 
@@ -29,9 +28,7 @@ struct InfoJson {
 
 /// Reads the mesh and prints its figures.
 pub fn run(args: &Args) -> Result<()> {
-    let step = crate::cmd::stage(format!("reading {}", args.file.display()));
-    let mesh = read_mesh(&args.file)?;
-    step.finish_and_clear();
+    let mesh = crate::cmd::read_mesh(&args.file)?;
     let s = mesh.stats();
     if args.json {
         let out = InfoJson {

@@ -4,7 +4,6 @@
 use anyhow::Result;
 use raymesh_mesh::half_edge::{BuildOptions, RepairReport};
 use raymesh_mesh::handle::Vertex;
-use raymesh_mesh::io::read_mesh;
 use raymesh_mesh::{CompactMesh, HalfEdgeMesh, IndexedMesh, WingedEdgeMesh};
 use serde::Serialize;
 use std::path::PathBuf;
@@ -86,7 +85,7 @@ fn build(m: &IndexedMesh) -> HalfEdgeMesh {
 
 /// Runs the command.
 pub fn run(args: &Args) -> Result<()> {
-    let mesh = read_mesh(&args.file)?;
+    let mesh = crate::cmd::read_mesh(&args.file)?;
     let (he, report): (HalfEdgeMesh, RepairReport) = HalfEdgeMesh::build(
         &mesh,
         BuildOptions {

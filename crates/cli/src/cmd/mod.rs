@@ -38,3 +38,36 @@ pub fn stage(msg: String) -> indicatif::ProgressBar {
 }
 
 pub use raymesh::rate;
+
+/// Reads a mesh file with a progress bar on a terminal: bytes while the
+/// file comes in, then a spinner while it is parsed.
+pub fn read_mesh(path: &std::path::Path) -> anyhow::Result<raymesh_mesh::IndexedMesh> {
+    use std::io::IsTerminal;
+    let name = path.display().to_string();
+    let terminal = std::io::stderr().is_terminal();
+    // Drawn from the first report on, once the file's size is known.
+    let bar = indicatif::ProgressBar::hidden();
+    if let Ok(style) = indicatif::ProgressStyle::with_template(
+        "reading {msg} [{bar:30}] {bytes}/{total_bytes} {bytes_per_sec} {eta}",
+    ) {
+        bar.set_style(style.progress_chars("=> "));
+    }
+    bar.set_message(name.clone());
+    let mut parsing = None;
+    let mesh = raymesh_mesh::io::read_mesh_with(path, &mut |done, total| {
+        if terminal && bar.is_hidden() && done < total {
+            bar.set_draw_target(indicatif::ProgressDrawTarget::stderr());
+        }
+        bar.set_length(total);
+        bar.set_position(done);
+        if done == total && parsing.is_none() {
+            bar.finish_and_clear();
+            parsing = Some(stage(format!("parsing {name}")));
+        }
+    });
+    bar.finish_and_clear();
+    if let Some(p) = parsing {
+        p.finish_and_clear();
+    }
+    Ok(mesh?)
+}

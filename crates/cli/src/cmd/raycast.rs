@@ -5,7 +5,6 @@ use anyhow::{Context, Result};
 use raymesh_accel::{
     AccelKind, CountStats, Primitives, Ray, Scene, Surface, TriangleMesh, Triangles,
 };
-use raymesh_mesh::io::read_mesh;
 use rayon::prelude::*;
 use serde::Serialize;
 use std::path::PathBuf;
@@ -120,10 +119,8 @@ pub fn run(args: &Args) -> Result<()> {
     raymesh_accel::set_simd_enabled(!args.no_simd);
     let pool = crate::cmd::thread_pool(args.threads)?;
     let threads = pool.current_num_threads();
-    let step = crate::cmd::stage(format!("reading {}", args.mesh.display()));
-    let mut mesh = read_mesh(&args.mesh)?;
+    let mut mesh = crate::cmd::read_mesh(&args.mesh)?;
     let rays = npy::read_rays(&args.rays)?;
-    step.finish_and_clear();
     // The corner copy is all a trace needs: the mesh goes as it is made.
     let triangles = mesh.triangles();
     let positions = std::mem::take(&mut mesh.positions);

@@ -5,7 +5,6 @@ use crate::npy;
 use crate::workload::{make_rays_framing, parse_frame, Workload};
 use anyhow::{bail, Context, Result};
 use raymesh_accel::{AccelKind, Scene, Surface, TriangleMesh};
-use raymesh_mesh::io::read_mesh;
 use std::path::PathBuf;
 
 /// Arguments of `raymesh rays`.
@@ -38,7 +37,7 @@ pub fn run(args: &Args) -> Result<()> {
     if args.size == 0 || args.size > 8192 {
         bail!("--size must be in 1..=8192");
     }
-    let mesh = read_mesh(&args.mesh)?;
+    let mesh = crate::cmd::read_mesh(&args.mesh)?;
     let scene = Scene::build(
         TriangleMesh::new(mesh.positions.clone(), mesh.triangles()),
         AccelKind::FASTEST_BVH,

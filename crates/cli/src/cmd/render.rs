@@ -64,7 +64,7 @@ fn mesh_loader(base: PathBuf) -> impl Fn(&str) -> Result<raymesh_mesh::IndexedMe
 /// A scene made on the spot for a mesh: BENCH.md's camera, a light near
 /// the eye, a grey material and a floor under the mesh.
 fn mesh_scene(path: &Path) -> Result<SceneDesc> {
-    let mesh = read_mesh(path)?;
+    let mesh = crate::cmd::read_mesh(path)?;
     let b = mesh.bounds();
     if b.is_empty() {
         bail!("{}: the mesh has no vertices", path.display());

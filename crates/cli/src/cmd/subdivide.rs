@@ -2,7 +2,7 @@
 
 use anyhow::{bail, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
-use raymesh_mesh::io::{read_mesh, write_mesh, Format};
+use raymesh_mesh::io::{write_mesh, Format};
 use raymesh_mesh::HalfEdgeMesh;
 use std::io::IsTerminal;
 use std::path::PathBuf;
@@ -41,7 +41,7 @@ pub fn run(args: &Args) -> Result<()> {
             args.output.display()
         );
     }
-    let mut mesh = read_mesh(&args.file)?;
+    let mut mesh = crate::cmd::read_mesh(&args.file)?;
     // Faces grow 4× per level (Loop) or to about 4× (Catmull–Clark, after the first).
     let faces_after = (mesh.indices().len() as f64) * 4f64.powi(args.levels as i32);
     if faces_after > (u32::MAX / 4) as f64 {

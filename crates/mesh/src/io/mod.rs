@@ -74,9 +74,22 @@ impl Format {
 
 /// Reads a mesh file, choosing the format by extension, else by content.
 pub fn read_mesh(path: impl AsRef<Path>) -> Result<IndexedMesh, MeshError> {
+    read_mesh_with(path, &mut |_, _| {})
+}
+
+/// Bytes read between two calls of a [`read_mesh_with`] progress callback.
+const READ_CHUNK: usize = 8 << 20;
+
+/// [`read_mesh`], calling `progress(bytes_read, file_size)` as the file
+/// comes in (every 8 MiB, and once at the end), so that a tool can show a
+/// progress bar while a multi-gigabyte file loads; parsing follows.
+pub fn read_mesh_with(
+    path: impl AsRef<Path>,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Result<IndexedMesh, MeshError> {
     let path = path.as_ref();
-    let bytes = std::fs::read(path)
-        .map_err(|e| MeshError::new(Location::File, ErrorKind::Io(e)).with_path(path))?;
+    let io = |e| MeshError::new(Location::File, ErrorKind::Io(e)).with_path(path);
+    let bytes = read_file(path, progress).map_err(io)?;
     let format = match Format::from_extension(path) {
         Some(f) => f,
         None => Format::sniff(&bytes).ok_or_else(|| {
@@ -88,6 +101,25 @@ pub fn read_mesh(path: impl AsRef<Path>) -> Result<IndexedMesh, MeshError> {
         })?,
     };
     read_bytes(&bytes, format).map_err(|e| e.with_path(path))
+}
+
+/// The whole file, read in chunks with `progress` after each.
+fn read_file(path: &Path, progress: &mut dyn FnMut(u64, u64)) -> std::io::Result<Vec<u8>> {
+    use std::io::Read;
+    let mut file = std::fs::File::open(path)?;
+    let size = file.metadata().map_or(0, |m| m.len());
+    // The size is a hint (a file may change while it is read): the loop
+    // reads to the end whatever it says.
+    let mut bytes = Vec::with_capacity(usize::try_from(size).unwrap_or(0));
+    loop {
+        let n = (&mut file)
+            .take(READ_CHUNK as u64)
+            .read_to_end(&mut bytes)?;
+        progress(bytes.len() as u64, size.max(bytes.len() as u64));
+        if n == 0 {
+            return Ok(bytes);
+        }
+    }
 }
 
 /// Reads a mesh from bytes in the given format.

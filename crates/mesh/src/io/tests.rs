@@ -486,3 +486,27 @@ proptest! {
         }
     }
 }
+
+/// Reading reports progress chunk by chunk, ending at the file's size, and
+/// gives the same mesh as reading without a callback.
+#[test]
+fn read_mesh_with_reports_progress_to_the_end() {
+    let dir = std::env::temp_dir().join(format!("raymesh-progress-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    // An OFF file of about 17 MiB: three chunks.
+    let mut text = String::from("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n");
+    while text.len() < 17 << 20 {
+        text.push_str("# padding padding padding padding padding padding padding\n");
+    }
+    let path = dir.join("big.off");
+    std::fs::write(&path, &text).unwrap();
+    let mut calls = Vec::new();
+    let mesh = read_mesh_with(&path, &mut |done, total| calls.push((done, total))).unwrap();
+    std::fs::remove_dir_all(&dir).unwrap();
+    let size = text.len() as u64;
+    assert!(calls.len() >= 3, "{calls:?}");
+    assert!(calls.windows(2).all(|w| w[0].0 <= w[1].0), "{calls:?}");
+    assert!(calls.iter().all(|&(d, t)| t == size && d <= t), "{calls:?}");
+    assert_eq!(calls.last(), Some(&(size, size)));
+    assert_eq!(mesh.triangles(), vec![[0, 1, 2]]);
+}
