@@ -442,7 +442,7 @@ impl Ctx<'_> {
         }
         // (cost, axis, first bin of the right side); costs are finite or
         // NaN, and a NaN never wins.
-        let (mut best_cost, mut best_axis, mut best_bin) = (f32::INFINITY, 0, 0);
+        let (mut best_cost, mut best_axis, mut best_bin, mut best_left) = (f32::INFINITY, 0, 0, 0);
         let mut right_area = [0.0f32; MAX_BINS];
         for axis in 0..3 {
             if !(ext[axis] > 0.0) {
@@ -463,7 +463,7 @@ impl Ctx<'_> {
                 }
                 let cost = left.half_area() * lcount as f32 + right_area[b] * rcount as f32;
                 if cost < best_cost {
-                    (best_cost, best_axis, best_bin) = (cost, axis, b);
+                    (best_cost, best_axis, best_bin, best_left) = (cost, axis, b, lcount);
                 }
             }
         }
@@ -475,9 +475,15 @@ impl Ctx<'_> {
             bounds.half_area(),
             |ids| {
                 let (_, axis, boundary) = best.expect("a split was found");
-                partition(ids, |r| {
-                    bin3(r.centroid(), cb.min, scale, nb)[axis] < boundary
-                })
+                // `bin3(c)[axis] < boundary` on one axis, without the
+                // float-to-integer conversion: the bin is the floor of `f`
+                // (clamped to the last bin, at or past any boundary), and a
+                // NaN `f` goes to bin 0, on the left, as `!(f >= b)` does.
+                let (lo, s, b) = (cb.min[axis], scale[axis], boundary as f32);
+                let mid = partition(ids, |r| !((r.centroid()[axis] - lo) * s >= b));
+                // The split moves exactly the primitives the bins counted.
+                assert_eq!(mid, best_left as usize, "partition disagrees with the bins");
+                mid
             },
         )
     }
@@ -607,6 +613,33 @@ mod tests {
                     assert_eq!(par.prim_ids(), seq.prim_ids());
                 }
             }
+        }
+    }
+
+    /// Boxes with NaN or infinite corners (from broken input) and huge
+    /// ones build without a panic, every primitive in exactly one leaf.
+    #[test]
+    fn non_finite_and_huge_boxes_build() {
+        let mut b = crate::test_util::clustered_boxes(3000);
+        let bad = [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, 3e38, -3e38];
+        for (i, x) in bad.iter().cycle().take(600).enumerate() {
+            let k = (i * 5) % b.len();
+            let axis = i % 3;
+            if i % 2 == 0 {
+                b[k].min[axis] = *x;
+            } else {
+                b[k].max[axis] = *x;
+            }
+        }
+        for builder in [
+            BvhBuilder::Median,
+            BvhBuilder::BinnedSah,
+            BvhBuilder::SweepSah,
+        ] {
+            let bvh = builder.build(&b, &BuildConfig::default());
+            let mut ids = bvh.prim_ids().to_vec();
+            ids.sort_unstable();
+            assert!(ids.iter().copied().eq(0..b.len() as u32), "{builder:?}");
         }
     }
 }
