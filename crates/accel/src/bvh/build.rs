@@ -552,15 +552,17 @@ impl Ctx<'_> {
 /// Most bins per axis of the binned builder.
 const MAX_BINS: usize = 64;
 
-/// Bin of a centroid on each axis (`as` saturates, so NaN lands in bin 0).
+/// Bin of a centroid on each axis: the floor of its scaled offset,
+/// clamped to the bins in floats first (`f32::max` drops a NaN, so NaN
+/// lands in bin 0), so that the conversion is a plain truncation of a small
+/// number rather than a saturating float-to-`usize` cast (half of the
+/// binning loop's time before).
 #[inline(always)]
 fn bin3(c: Vec3, min: Vec3, scale: Vec3, nb: usize) -> [usize; 3] {
     let f = (c - min) * scale;
-    [
-        (f.x as usize).min(nb - 1),
-        (f.y as usize).min(nb - 1),
-        (f.z as usize).min(nb - 1),
-    ]
+    let last = (nb - 1) as f32;
+    let k = |x: f32| x.max(0.0).min(last) as i32 as usize;
+    [k(f.x), k(f.y), k(f.z)]
 }
 
 /// Moves the elements satisfying `pred` to the front; returns how many
