@@ -494,12 +494,21 @@ impl Ctx<'_> {
         for axis in 0..3 {
             bins[axis * MAX_BINS..axis * MAX_BINS + nb].fill(Bin::EMPTY);
         }
+        // Each axis's bins as a fixed-size array, indexed by a bin number
+        // masked to the array (a no-op: bins are below `nb <= MAX_BINS`),
+        // so the loop carries no bounds checks.
+        let (x, rest) = bins.split_at_mut(MAX_BINS);
+        let (y, z) = rest.split_at_mut(MAX_BINS);
+        let axes: [&mut [Bin; MAX_BINS]; 3] =
+            [x, y, &mut z[..MAX_BINS]].map(|b| b.try_into().expect("MAX_BINS bins per axis"));
+        let [x, y, z] = axes;
+        const MASK: usize = MAX_BINS - 1;
         for r in ids {
             let (lo, hi) = (Vec3A::from(r.min), Vec3A::from(r.max));
             let k = bin3(r.centroid(), min, scale, nb);
-            for axis in 0..3 {
-                bins[axis * MAX_BINS + k[axis]].add(lo, hi);
-            }
+            x[k[0] & MASK].add(lo, hi);
+            y[k[1] & MASK].add(lo, hi);
+            z[k[2] & MASK].add(lo, hi);
         }
     }
 
@@ -549,8 +558,9 @@ impl Ctx<'_> {
     }
 }
 
-/// Most bins per axis of the binned builder.
+/// Most bins per axis of the binned builder (a power of two: see `bin`).
 const MAX_BINS: usize = 64;
+const _: () = assert!(MAX_BINS.is_power_of_two());
 
 /// Bin of a centroid on each axis: the floor of its scaled offset,
 /// clamped to the bins in floats first (`f32::max` drops a NaN, so NaN
