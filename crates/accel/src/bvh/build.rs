@@ -576,23 +576,20 @@ fn bin3(c: Vec3, min: Vec3, scale: Vec3, nb: usize) -> [usize; 3] {
 }
 
 /// Moves the elements satisfying `pred` to the front; returns how many
-/// there are. Hoare's scheme: only misplaced pairs are swapped.
+/// there are. Lomuto's scheme without branches: every element is swapped
+/// with the first one not yet known to satisfy `pred`, and the count grows
+/// by the predicate's value. It writes more than Hoare's scheme but never
+/// mispredicts on a split's coin-flip predicate (Hoare's partition was a
+/// fifth of the build).
 fn partition<T>(v: &mut [T], pred: impl Fn(&T) -> bool) -> usize {
-    let (mut i, mut j) = (0, v.len());
-    loop {
-        while i < j && pred(&v[i]) {
-            i += 1;
-        }
-        while i < j && !pred(&v[j - 1]) {
-            j -= 1;
-        }
-        if i + 1 >= j {
-            return i;
-        }
-        v.swap(i, j - 1);
-        i += 1;
-        j -= 1;
+    let mut l = 0;
+    for i in 0..v.len() {
+        // v[..l] satisfy pred, v[l..i] do not.
+        let p = pred(&v[i]);
+        v.swap(l, i);
+        l += usize::from(p);
     }
+    l
 }
 
 #[cfg(test)]
