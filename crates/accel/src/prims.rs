@@ -213,6 +213,29 @@ impl Triangles {
         }
     }
 
+    /// The corners of an indexed mesh's triangles in the order `order`
+    /// (`stored[k]` is the mesh's triangle `order[k]`): a BVH's leaf order,
+    /// gathered straight from the mesh, so that no copy in the mesh's order
+    /// is made and then permuted.
+    #[must_use]
+    pub fn from_mesh_in_order(mesh: &TriangleMesh, order: &[u32]) -> Self {
+        let rows = std::array::from_fn(|r| {
+            let (corner, axis) = (r / 3, r % 3);
+            let mut row = Vec::with_capacity(order.len() + BLOCK);
+            row.par_extend(
+                order
+                    .par_iter()
+                    .map(|&i| mesh.positions[mesh.triangles[i as usize][corner] as usize][axis]),
+            );
+            row.resize(order.len() + BLOCK, 0.0);
+            row
+        });
+        Self {
+            rows,
+            len: order.len(),
+        }
+    }
+
     /// The corners of triangle `i`.
     #[inline(always)]
     #[must_use]

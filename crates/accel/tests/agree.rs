@@ -72,6 +72,26 @@ fn check_mesh(m: &TriangleMesh, rays: &[Ray]) -> usize {
     }
     let hits = check_all(m, rays);
     assert_eq!(check_all(&tris, rays), hits);
+    // Scenes gathered straight from the mesh in leaf order are the same
+    // scenes, hit for hit, with the same structure.
+    for kind in KINDS {
+        let want = Scene::build(tris.clone(), kind);
+        let got = Scene::from_mesh(m, kind);
+        let (ws, gs) = (want.stats(), got.stats());
+        assert_eq!(
+            (ws.nodes, ws.depth, ws.bytes),
+            (gs.nodes, gs.depth, gs.bytes),
+            "{kind}"
+        );
+        for r in rays {
+            assert_eq!(
+                key(got.intersect(r)),
+                key(want.intersect(r)),
+                "{kind}: {r:?}"
+            );
+            assert_eq!(got.occluded(r), want.occluded(r), "{kind}: {r:?}");
+        }
+    }
     hits
 }
 

@@ -118,7 +118,7 @@ fn kernels(c: &mut Criterion) {
     );
     if let Ok(mesh) = raymesh_mesh::io::read_mesh(bunny) {
         let tm = TriangleMesh::new(mesh.positions.clone(), mesh.triangles());
-        let scene = Scene::build(Triangles::from_mesh(&tm), AccelKind::FASTEST_BVH);
+        let scene = Scene::from_mesh(&tm, AccelKind::FASTEST_BVH);
         let b = scene.bounds();
         let mut rng = Rng(11);
         let queries: Vec<Ray> = (0..256)

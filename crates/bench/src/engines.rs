@@ -98,7 +98,7 @@ impl Raymesh {
         // triangle rows is.
         let tm = TriangleMesh::new(positions.to_vec(), triangles.to_vec());
         let start = Instant::now();
-        let scene = Scene::build(Triangles::from_mesh(&tm), accel);
+        let scene = Scene::from_mesh(&tm, accel);
         Self {
             scene,
             build_ms: start.elapsed().as_secs_f64() * 1e3,

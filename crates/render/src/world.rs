@@ -298,8 +298,7 @@ impl World {
                             let tris = mesh.triangles();
                             let normals = vertex_normals(&mesh);
                             let tm = TriangleMesh::new(mesh.positions, tris.clone());
-                            objects
-                                .push(Object::Mesh(Scene::build(Triangles::from_mesh(&tm), accel)));
+                            objects.push(Object::Mesh(Scene::from_mesh(&tm, accel)));
                             meshes.push(MeshData {
                                 triangles: tris,
                                 normals,

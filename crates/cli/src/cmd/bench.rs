@@ -8,7 +8,7 @@ use crate::npy::HitRecord;
 use crate::workload::{make_rays_framing, parse_frame, unpack_ray, Workload};
 use anyhow::{bail, Result};
 use indicatif::{ProgressBar, ProgressStyle};
-use raymesh_accel::{AccelKind, Ray, Scene, Surface, TriangleMesh, Triangles};
+use raymesh_accel::{AccelKind, Ray, Scene, Surface, TriangleMesh};
 use raymesh_mesh::io::read_mesh;
 use serde::Serialize;
 use std::io::IsTerminal;
@@ -138,7 +138,7 @@ pub fn run(args: &Args) -> Result<()> {
             let build = |pool: &rayon::ThreadPool| {
                 pool.install(|| {
                     let t = Instant::now();
-                    let s = Scene::build(Triangles::from_mesh(&tm), accel);
+                    let s = Scene::from_mesh(&tm, accel);
                     (t.elapsed().as_secs_f64() * 1e3, s)
                 })
             };

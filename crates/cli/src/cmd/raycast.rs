@@ -121,19 +121,21 @@ pub fn run(args: &Args) -> Result<()> {
     let threads = pool.current_num_threads();
     let mut mesh = crate::cmd::read_mesh(&args.mesh)?;
     let rays = npy::read_rays(&args.rays)?;
-    // The corner copy is all a trace needs: the mesh goes as it is made.
+    // The corner copy the scene gathers is all a trace needs: the mesh
+    // goes once the scene is built.
     let triangles = mesh.triangles();
     let positions = std::mem::take(&mut mesh.positions);
     drop(mesh);
-    let tris = Triangles::from_mesh(&TriangleMesh::new(positions, triangles));
-    let ntri = tris.len();
-    let copy_bytes = tris.bytes();
+    let tm = TriangleMesh::new(positions, triangles);
+    let ntri = tm.len();
     let step = crate::cmd::stage(format!(
         "building {} over {ntri} triangles",
         args.accel.name()
     ));
-    let scene = pool.install(|| Scene::build(tris, args.accel));
+    let scene = pool.install(|| Scene::from_mesh(&tm, args.accel));
+    drop(tm);
     step.finish_and_clear();
+    let copy_bytes = scene.prims().bytes();
     let mut stats = scene.stats();
     // The corner copy is part of what the structure costs (the mesh's own buffers are not).
     stats.bytes += copy_bytes;
