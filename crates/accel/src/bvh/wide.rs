@@ -140,59 +140,60 @@ impl<const W: usize> WideBvh<W> {
     /// binary node and keeps opening its largest inner child (by surface
     /// area) until it has `W`.
     #[must_use]
-    pub fn from_binary(bin: Bvh) -> Self {
-        let nodes2 = bin.nodes();
-        let bounds = bin.bounds();
+    pub fn from_binary(mut bin: Bvh) -> Self {
         let mut out = Self {
             nodes: Vec::new(),
-            prim_ids: bin.prim_ids,
-            bounds,
+            prim_ids: std::mem::take(&mut bin.prim_ids),
+            bounds: bin.bounds(),
         };
-        if nodes2.is_empty() {
+        if bin.pairs.is_empty() {
             return out;
         }
-        if nodes2[0].is_leaf() {
+        // Read the binary nodes where they lie (no copy of them): the
+        // collapse's peak is the binary tree plus the wide one.
+        let root = bin.node(0);
+        if root.is_leaf() {
             let mut n = WideNode::<W>::EMPTY;
-            n.set_box(0, nodes2[0].bounds());
-            n.child[0] = nodes2[0].index;
-            n.count[0] = nodes2[0].count;
+            n.set_box(0, root.bounds());
+            n.child[0] = root.index;
+            n.count[0] = root.count;
             out.nodes.push(n);
         } else {
-            out.collapse(&nodes2, 0);
+            out.collapse(&bin, 0);
         }
         out
     }
 
-    fn collapse(&mut self, nodes2: &[super::Node], at: usize) -> u32 {
+    fn collapse(&mut self, bin: &Bvh, at: u32) -> u32 {
         let me = self.nodes.len();
         self.nodes.push(WideNode::<W>::EMPTY);
-        let first = nodes2[at].index as usize;
-        let mut kids = vec![first, first + 1];
-        while kids.len() < W {
-            let open = kids
-                .iter()
-                .enumerate()
-                .filter(|(_, &k)| !nodes2[k].is_leaf())
-                .max_by(|a, b| {
-                    nodes2[*a.1]
-                        .bounds()
-                        .half_area()
-                        .total_cmp(&nodes2[*b.1].bounds().half_area())
+        let first = bin.node(at).index;
+        let mut kids = [0u32; W];
+        (kids[0], kids[1]) = (first, first + 1);
+        let mut len = 2;
+        while len < W {
+            // Open the inner child with the largest box.
+            let open = (0..len)
+                .filter(|&i| !bin.node(kids[i]).is_leaf())
+                .max_by(|&a, &b| {
+                    let area = |i: usize| bin.node(kids[i]).bounds().half_area();
+                    area(a).total_cmp(&area(b))
                 });
-            let Some((i, &k)) = open else { break };
-            let c = nodes2[k].index as usize;
+            let Some(i) = open else { break };
+            let c = bin.node(kids[i]).index;
             kids[i] = c;
-            kids.push(c + 1);
+            kids[len] = c + 1;
+            len += 1;
         }
         let mut node = WideNode::<W>::EMPTY;
-        for (i, &k) in kids.iter().enumerate() {
-            let n = &nodes2[k];
+        for (i, &k) in kids[..len].iter().enumerate() {
+            let n = bin.node(k);
             node.set_box(i, n.bounds());
             if n.is_leaf() {
                 node.child[i] = n.index;
                 node.count[i] = n.count;
             } else {
-                node.child[i] = self.collapse(nodes2, k);
+                node.child[i] = self.collapse(bin, k);
             }
         }
         self.nodes[me] = node;
