@@ -165,8 +165,11 @@ impl Grid {
     #[inline(always)]
     fn cell_of(&self, p: Vec3, a: usize) -> u32 {
         let f = (p[a] - self.bounds.min[a]) * self.inv_cell_size[a];
-        // `as` saturates (NaN → 0), then clamp to the last cell.
-        (f.floor().max(0.0) as u32).min(self.res[a] - 1)
+        // Clamped into the cells in floats (`max` drops a NaN), then
+        // truncated: for `f >= 0` truncation is the floor, so this is the
+        // cell `floor(f)` clamped, without a call to `floorf` (x86-64's
+        // baseline has no rounding instruction) or a saturating cast.
+        f.max(0.0).min((self.res[a] - 1) as f32) as i32 as u32
     }
 
     /// Calls `f` with the index of every cell a box overlaps (generic, so

@@ -385,13 +385,17 @@ impl Builder<'_> {
             Vec3::splat(nb as f32) / ext,
             Vec3::ZERO,
         );
+        // Clamped in floats (`max` drops a NaN), then truncated: the same
+        // bins as a saturating cast, without its fix-ups (as the BVH's
+        // binning does).
+        let last = Vec3::splat(nb as f32);
         for &i in ids {
             let b = self.boxes[i as usize];
-            let lo = ((b.min - bounds.min) * scale).max(Vec3::ZERO);
-            let hi = ((b.max - bounds.min) * scale).max(Vec3::ZERO);
+            let lo = ((b.min - bounds.min) * scale).max(Vec3::ZERO).min(last);
+            let hi = ((b.max - bounds.min) * scale).max(Vec3::ZERO).min(last);
             for axis in 0..3 {
-                mins[(lo[axis] as usize).min(nb)][axis] += 1;
-                maxs[(hi[axis] as usize).min(nb)][axis] += 1;
+                mins[lo[axis] as i32 as usize][axis] += 1;
+                maxs[hi[axis] as i32 as usize][axis] += 1;
             }
         }
         for axis in 0..3 {
