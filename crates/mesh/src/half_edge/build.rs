@@ -1,7 +1,7 @@
 //! Building a half-edge mesh from indexed polygons, repairing what real
 //! files get wrong instead of dropping faces, and converting back.
 
-use super::HalfEdgeMesh;
+use super::{HalfEdgeMesh, Link};
 use crate::handle::{Face, HalfEdge, Vertex};
 use crate::{ErrorKind, IndexedMesh, Location, MeshError};
 
@@ -229,25 +229,28 @@ impl HalfEdgeMesh {
             if corner_he[c].is_valid() {
                 continue;
             }
-            let h = HalfEdge::new(m.h_to.len());
+            let h = HalfEdge::new(m.h_link.len());
             corner_he[c] = h;
-            m.h_to.push(Vertex(head(c)));
+            m.h_link.push(Link {
+                to: Vertex(head(c)),
+                next: HalfEdge::INVALID,
+            });
             m.h_face.push(Face(corner_face[c]));
-            m.h_next.push(HalfEdge::INVALID);
             let d = pair[c];
+            m.h_link.push(Link {
+                to: Vertex(corner_v[c]),
+                next: HalfEdge::INVALID,
+            });
             if d != NONE {
                 corner_he[d as usize] = h.twin();
-                m.h_to.push(Vertex(corner_v[c]));
                 m.h_face.push(Face(corner_face[d as usize]));
             } else {
-                m.h_to.push(Vertex(corner_v[c]));
                 m.h_face.push(Face::INVALID);
             }
-            m.h_next.push(HalfEdge::INVALID);
         }
         report.added_edges = cut;
         for c in 0..nc {
-            m.h_next[corner_he[c].idx()] = corner_he[corner_next[c] as usize];
+            m.h_link[corner_he[c].idx()].next = corner_he[corner_next[c] as usize];
         }
         m.f_half = (0..nf).map(|f| corner_he[face_start[f] as usize]).collect();
 
@@ -305,8 +308,8 @@ impl HalfEdgeMesh {
                 for &c in outs {
                     if fan_of[c as usize] == fan {
                         let h = corner_he[c as usize];
-                        m.h_to[h.twin().idx()] = nv2;
-                        m.h_to[corner_he[corner_prev(c as usize)].idx()] = nv2;
+                        m.h_link[h.twin().idx()].to = nv2;
+                        m.h_link[corner_he[corner_prev(c as usize)].idx()].to = nv2;
                     }
                 }
             }
@@ -314,7 +317,7 @@ impl HalfEdgeMesh {
 
         // Boundary loops, and each vertex's half-edge (its boundary one if any).
         let nv = m.positions.len();
-        let nh = m.h_to.len();
+        let nh = m.h_link.len();
         m.v_half = vec![HalfEdge::INVALID; nv];
         let mut boundary_out = vec![HalfEdge::INVALID; nv];
         for h in 0..nh {
@@ -330,7 +333,7 @@ impl HalfEdgeMesh {
         for h in 0..nh {
             let h = HalfEdge::new(h);
             if m.is_boundary_halfedge(h) {
-                m.h_next[h.idx()] = boundary_out[m.to_vertex(h).idx()];
+                m.h_link[h.idx()].next = boundary_out[m.to_vertex(h).idx()];
             }
         }
         for v in 0..nv {

@@ -2,7 +2,7 @@
 //! the link condition of Dey et al. 1999 / Hoppe et al. 1993), and garbage
 //! collection of what collapses delete.
 
-use super::HalfEdgeMesh;
+use super::{HalfEdgeMesh, Link};
 use crate::handle::{Edge, Face, HalfEdge, Vertex};
 use raymesh_geometry::Vec3;
 
@@ -135,15 +135,15 @@ impl HalfEdgeMesh {
         let (va0, vb0) = (self.to_vertex(h0), self.to_vertex(h1));
         let (va1, vb1) = (self.to_vertex(a0), self.to_vertex(a1));
         let (f0, f1) = (self.face(h0), self.face(h1));
-        self.h_to[h0.idx()] = va1;
-        self.h_to[h1.idx()] = vb1;
+        self.h_link[h0.idx()].to = va1;
+        self.h_link[h1.idx()].to = vb1;
         // Face f0: h0 (vb1→va1), b0 (va1→vb0), a1 (vb0→vb1). Face f1: h1, b1, a0.
-        self.h_next[h0.idx()] = b0;
-        self.h_next[b0.idx()] = a1;
-        self.h_next[a1.idx()] = h0;
-        self.h_next[h1.idx()] = b1;
-        self.h_next[b1.idx()] = a0;
-        self.h_next[a0.idx()] = h1;
+        self.h_link[h0.idx()].next = b0;
+        self.h_link[b0.idx()].next = a1;
+        self.h_link[a1.idx()].next = h0;
+        self.h_link[h1.idx()].next = b1;
+        self.h_link[b1.idx()].next = a0;
+        self.h_link[a0.idx()].next = h1;
         self.h_face[a1.idx()] = f0;
         self.h_face[a0.idx()] = f1;
         self.f_half[f0.idx()] = h0;
@@ -158,9 +158,17 @@ impl HalfEdgeMesh {
     }
 
     fn new_edge(&mut self, from: Vertex, to: Vertex) -> HalfEdge {
-        let h = HalfEdge::new(self.h_to.len());
-        self.h_to.extend([to, from]);
-        self.h_next.extend([HalfEdge::INVALID; 2]);
+        let h = HalfEdge::new(self.h_link.len());
+        self.h_link.extend([
+            Link {
+                to,
+                next: HalfEdge::INVALID,
+            },
+            Link {
+                to: from,
+                next: HalfEdge::INVALID,
+            },
+        ]);
         self.h_face.extend([Face::INVALID; 2]);
         h
     }
@@ -185,7 +193,7 @@ impl HalfEdgeMesh {
         self.positions.push(p);
         self.v_half.push(HalfEdge::INVALID);
         // h0: v0→v, g: v→v1 (its twin v1→v), h1 becomes v→v0.
-        self.h_to[h0.idx()] = v;
+        self.h_link[h0.idx()].to = v;
         let g = self.new_edge(v, v1);
         let gt = g.twin();
         if f0.is_valid() {
@@ -196,8 +204,8 @@ impl HalfEdgeMesh {
             self.set_triangle([g, x, n.twin()], f0);
             self.set_triangle([h0, n, y], f2);
         } else {
-            self.h_next[h0.idx()] = g;
-            self.h_next[g.idx()] = next_h0;
+            self.h_link[h0.idx()].next = g;
+            self.h_link[g.idx()].next = next_h0;
         }
         if f1.is_valid() {
             let (z, q) = (
@@ -210,8 +218,8 @@ impl HalfEdgeMesh {
             self.set_triangle([h1, z, m.twin()], f1);
             self.set_triangle([gt, m, q], f4);
         } else {
-            self.h_next[prev_h1.idx()] = gt;
-            self.h_next[gt.idx()] = h1;
+            self.h_link[prev_h1.idx()].next = gt;
+            self.h_link[gt.idx()].next = h1;
         }
         self.v_half[v.idx()] = if !f1.is_valid() { h1 } else { g };
         if self.v_half[v1.idx()] == h1 {
@@ -226,7 +234,7 @@ impl HalfEdgeMesh {
 
     fn set_triangle(&mut self, hs: [HalfEdge; 3], f: Face) {
         for i in 0..3 {
-            self.h_next[hs[i].idx()] = hs[(i + 1) % 3];
+            self.h_link[hs[i].idx()].next = hs[(i + 1) % 3];
             self.h_face[hs[i].idx()] = f;
         }
         self.f_half[f.idx()] = hs[0];
@@ -300,10 +308,10 @@ impl HalfEdgeMesh {
         let vr = fo.is_valid().then(|| self.to_vertex(on));
         let incoming: Vec<HalfEdge> = self.outgoing_halfedges(v0).map(HalfEdge::twin).collect();
         for i in incoming {
-            self.h_to[i.idx()] = v1;
+            self.h_link[i.idx()].to = v1;
         }
-        self.h_next[hp.idx()] = hn;
-        self.h_next[op.idx()] = on;
+        self.h_link[hp.idx()].next = hn;
+        self.h_link[op.idx()].next = on;
         if fh.is_valid() {
             self.f_half[fh.idx()] = hn;
         }
@@ -332,8 +340,8 @@ impl HalfEdgeMesh {
         let ta = a.twin();
         let x = self.to_vertex(a);
         let (f, g) = (self.face(a), self.face(ta));
-        self.h_next[prev_ta.idx()] = b;
-        self.h_next[b.idx()] = self.next_halfedge(ta);
+        self.h_link[prev_ta.idx()].next = b;
+        self.h_link[b.idx()].next = self.next_halfedge(ta);
         self.h_face[b.idx()] = g;
         if g.is_valid() && self.f_half[g.idx()] == ta {
             self.f_half[g.idx()] = b;
@@ -374,8 +382,8 @@ impl HalfEdgeMesh {
             let (v0, v1) = (self.to_vertex(h0), self.to_vertex(h1));
             let (next0, next1) = (self.next_halfedge(h0), self.next_halfedge(h1));
             let (prev0, prev1) = (self.prev_halfedge(h0), self.prev_halfedge(h1));
-            self.h_next[prev0.idx()] = next1;
-            self.h_next[prev1.idx()] = next0;
+            self.h_link[prev0.idx()].next = next1;
+            self.h_link[prev1.idx()].next = next0;
             self.mark_edge_deleted(e);
             if self.v_half[v0.idx()] == h1 {
                 if next0 == h1 {
@@ -444,8 +452,10 @@ impl HalfEdgeMesh {
         }
         for h in 0..self.num_halfedges() {
             if emap[h >> 1] != u32::MAX {
-                m.h_to.push(vm(self.h_to[h]));
-                m.h_next.push(hmap(self.h_next[h]));
+                m.h_link.push(Link {
+                    to: vm(self.h_link[h].to),
+                    next: hmap(self.h_link[h].next),
+                });
                 m.h_face.push(fm(self.h_face[h]));
             }
         }

@@ -26,10 +26,10 @@ pub struct HalfEdgeMesh {
     pub(crate) positions: Vec<Vec3>,
     /// Outgoing half-edge of each vertex (boundary one on a boundary; none if isolated).
     pub(crate) v_half: Vec<HalfEdge>,
-    /// Head vertex of each half-edge.
-    pub(crate) h_to: Vec<Vertex>,
-    /// Next half-edge around the face or boundary loop.
-    pub(crate) h_next: Vec<HalfEdge>,
+    /// Head vertex and next half-edge (around the face or boundary loop)
+    /// of each half-edge, side by side: a walk around a vertex reads both
+    /// from one cache line (the twin's `next` sits beside `to`).
+    pub(crate) h_link: Vec<Link>,
     /// Face of each half-edge (none on a boundary).
     pub(crate) h_face: Vec<Face>,
     /// One half-edge of each face.
@@ -37,6 +37,13 @@ pub struct HalfEdgeMesh {
     /// Deleted elements since the last garbage collection; allocated only
     /// once an edit deletes something.
     pub(crate) garbage: Option<Box<edit::Garbage>>,
+}
+
+/// A half-edge's head vertex and the next half-edge around its face.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Link {
+    pub(crate) to: Vertex,
+    pub(crate) next: HalfEdge,
 }
 
 impl HalfEdgeMesh {
@@ -51,14 +58,14 @@ impl HalfEdgeMesh {
     #[inline]
     #[must_use]
     pub fn num_edges(&self) -> usize {
-        self.h_to.len() / 2
+        self.h_link.len() / 2
     }
 
     /// Number of half-edges.
     #[inline]
     #[must_use]
     pub fn num_halfedges(&self) -> usize {
-        self.h_to.len()
+        self.h_link.len()
     }
 
     /// Number of faces.
@@ -85,21 +92,21 @@ impl HalfEdgeMesh {
     #[inline(always)]
     #[must_use]
     pub fn to_vertex(&self, h: HalfEdge) -> Vertex {
-        self.h_to[h.idx()]
+        self.h_link[h.idx()].to
     }
 
     /// The vertex a half-edge starts from.
     #[inline(always)]
     #[must_use]
     pub fn from_vertex(&self, h: HalfEdge) -> Vertex {
-        self.h_to[h.twin().idx()]
+        self.h_link[h.twin().idx()].to
     }
 
     /// The next half-edge around the face (or boundary loop).
     #[inline(always)]
     #[must_use]
     pub fn next_halfedge(&self, h: HalfEdge) -> HalfEdge {
-        self.h_next[h.idx()]
+        self.h_link[h.idx()].next
     }
 
     /// The previous half-edge around the face (or boundary loop). Not
@@ -180,7 +187,7 @@ impl HalfEdgeMesh {
     pub fn memory_bytes(&self) -> usize {
         self.positions.len() * 12
             + self.v_half.len() * 4
-            + self.h_to.len() * 12
+            + self.h_link.len() * 12
             + self.f_half.len() * 4
             + self.garbage.as_ref().map_or(0, |g| g.bytes())
     }

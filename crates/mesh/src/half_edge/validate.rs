@@ -16,11 +16,7 @@ impl HalfEdgeMesh {
                 .map_err(|e| format!("after dropping deleted elements: {e}"));
         }
         let (nv, nh, nf) = (self.num_vertices(), self.num_halfedges(), self.num_faces());
-        if self.v_half.len() != nv
-            || self.h_next.len() != nh
-            || self.h_face.len() != nh
-            || nh % 2 != 0
-        {
+        if self.v_half.len() != nv || self.h_face.len() != nh || nh % 2 != 0 {
             return Err("array lengths disagree".into());
         }
         for h in 0..nh {
