@@ -7,7 +7,7 @@
 //! types before the clock starts, and answers closest-hit queries with
 //! `(t, triangle index in the input)` and any-hit queries with a flag.
 
-use raymesh_accel::{AccelKind, Primitives, Scene, Surface, TriangleMesh, Triangles};
+use raymesh_accel::{AccelKind, Scene, Surface, TriangleMesh, Triangles};
 use raymesh_geometry::Vec3;
 use rayon::prelude::*;
 use rayon::ThreadPool;
@@ -76,15 +76,6 @@ pub fn build(
     }
 }
 
-fn unpack(r: &[f32; 8]) -> raymesh_accel::Ray {
-    raymesh_accel::Ray::new(
-        Vec3::new(r[0], r[1], r[2]),
-        Vec3::new(r[4], r[5], r[6]),
-        r[3],
-        r[7],
-    )
-}
-
 /// raymesh's scene over its fastest layout for the chosen structure.
 pub struct Raymesh {
     scene: Scene<Triangles>,
@@ -114,11 +105,15 @@ impl Engine for Raymesh {
         self.build_ms
     }
     fn bytes(&self) -> Option<usize> {
-        // The structure plus its triangle rows (9 floats per triangle).
-        Some(self.scene.stats().bytes + self.scene.prims().len() * 36)
+        // The structure plus its triangle rows, as `raymesh raycast` counts.
+        Some(self.scene.stats().bytes + self.scene.prims().bytes())
     }
     fn trace(&self, rays: &[[f32; 8]], any: bool, run: &Runner) -> (f64, Vec<Answer>) {
-        let rays: Vec<_> = rays.iter().map(unpack).collect();
+        let rays: Vec<_> = rays
+            .iter()
+            .copied()
+            .map(raymesh::workload::unpack_ray)
+            .collect();
         if any {
             run.run(&rays, |r| self.scene.occluded(r).then_some((0.0, 0)))
         } else {
@@ -219,6 +214,8 @@ impl Engine for Obvhs {
 /// index slot per shape.
 struct BvhTri {
     p: [nalgebra::Point3<f32>; 3],
+    /// The triangle's index in the input.
+    id: u32,
     node: usize,
 }
 
@@ -290,8 +287,10 @@ impl BvhCrate {
         };
         let mut shapes: Vec<BvhTri> = triangles
             .iter()
-            .map(|&[a, b, c]| BvhTri {
+            .zip(0..)
+            .map(|(&[a, b, c], id)| BvhTri {
                 p: [p(a), p(b), p(c)],
+                id,
                 node: 0,
             })
             .collect();
@@ -336,11 +335,6 @@ impl Engine for BvhCrate {
             let d = Vec3::new(ray.direction.x, ray.direction.y, ray.direction.z);
             moller_trumbore(o, d, &tri.p, 0.0, tmax)
         };
-        let index = |tri: &BvhTri| {
-            // Shapes keep their order; the reference's offset is the index.
-            (std::ptr::from_ref(tri) as usize - self.shapes.as_ptr() as usize)
-                / std::mem::size_of::<BvhTri>()
-        };
         if any {
             run.run(&rays, |(ray, tmin, tmax)| {
                 let limit = tmax - tmin;
@@ -363,7 +357,7 @@ impl Engine for BvhCrate {
                     let t = test(ray, tri, best);
                     if t.is_finite() && (hit.is_none() || t < best) {
                         best = t;
-                        hit = Some(index(tri) as u32);
+                        hit = Some(tri.id);
                     }
                 }
                 hit.map(|p| (best + tmin, p))

@@ -91,6 +91,22 @@ struct Trace {
     agree_with: &'static str,
 }
 
+impl Trace {
+    /// Whether `other` measured the same case (mesh, workload, thread
+    /// count and query), whatever the engine.
+    fn same_case(&self, other: &Trace) -> bool {
+        self.mesh == other.mesh
+            && self.workload == other.workload
+            && self.threads == other.threads
+            && self.query == other.query
+    }
+}
+
+/// Table cells: `cell` of each item, joined by ` | `.
+fn cells<T>(items: &[T], cell: impl Fn(&T) -> String) -> String {
+    items.iter().map(cell).collect::<Vec<_>>().join(" | ")
+}
+
 /// The engines to run, reference first: Embree when built in and asked
 /// for, else raymesh.
 fn engine_names(peers: &str) -> Result<Vec<&'static str>> {
@@ -326,78 +342,65 @@ fn main() -> Result<()> {
 /// The text report of one mesh at one thread count.
 fn report(builds: &[Build], traces: &[Trace], reference: &str) {
     let t = builds[0].threads;
-    let line = builds
-        .iter()
-        .map(|b| match b.bytes_per_triangle {
-            Some(bytes) => format!("{} {:.1} ms, {bytes:.1} B/tri", b.engine, b.build_ms),
-            None => format!("{} {:.1} ms", b.engine, b.build_ms),
-        })
-        .collect::<Vec<_>>()
-        .join(" | ");
+    let line = cells(builds, |b| match b.bytes_per_triangle {
+        Some(bytes) => format!("{} {:.1} ms, {bytes:.1} B/tri", b.engine, b.build_ms),
+        None => format!("{} {:.1} ms", b.engine, b.build_ms),
+    });
     println!("  build, {t} thread(s): {line}");
-    let cases: Vec<(&str, &str)> = traces
-        .iter()
-        .filter(|tr| tr.engine == "raymesh")
-        .map(|tr| (tr.workload.as_str(), tr.query))
-        .collect();
-    for (workload, query) in cases {
-        let row: Vec<&Trace> = traces
-            .iter()
-            .filter(|tr| tr.workload == workload && tr.query == query)
-            .collect();
-        let speeds = row
-            .iter()
-            .map(|tr| format!("{} {}", tr.engine, raymesh::rate(tr.mrays_per_s)))
-            .collect::<Vec<_>>()
-            .join(" | ");
+    for case in traces.iter().filter(|tr| tr.engine == "raymesh") {
+        let row: Vec<&Trace> = traces.iter().filter(|tr| tr.same_case(case)).collect();
+        let (workload, query) = (&case.workload, case.query);
+        let speeds = cells(&row, |tr| {
+            format!("{} {}", tr.engine, raymesh::rate(tr.mrays_per_s))
+        });
         println!("  {workload:<8} {t} thr {query:<8} Mrays/s: {speeds}");
-        let ratios = row
+        let peers: Vec<&Trace> = row
             .iter()
+            .copied()
             .filter(|tr| tr.engine != "raymesh")
-            .map(|tr| format!("{} {:.2}", tr.engine, tr.raymesh_ratio))
-            .collect::<Vec<_>>()
-            .join(" | ");
-        if !ratios.is_empty() {
+            .collect();
+        if !peers.is_empty() {
+            let ratios = cells(&peers, |tr| {
+                format!("{} {:.2}", tr.engine, tr.raymesh_ratio)
+            });
             println!("  {:<23} raymesh / peer: {ratios}", "");
         }
-        let agree = row
+        let others: Vec<&Trace> = row
             .iter()
+            .copied()
             .filter(|tr| tr.engine != reference)
-            .map(|tr| format!("{} {:.3}%", tr.engine, 100.0 * tr.agree))
-            .collect::<Vec<_>>()
-            .join(" | ");
-        if !agree.is_empty() {
+            .collect();
+        if !others.is_empty() {
+            let agree = cells(&others, |tr| {
+                format!("{} {:.3}%", tr.engine, 100.0 * tr.agree)
+            });
             println!("  {:<23} hits agree with {reference}: {agree}", "");
         }
     }
 }
 
-/// Markdown tables: builds, Mrays/s with raymesh's ratios, and agreement.
+/// Markdown tables: builds, bytes, Mrays/s with raymesh's ratios, and
+/// agreement with the reference engine.
 fn markdown(names: &[&str], builds: &[Build], traces: &[Trace], threads: &[usize]) {
     let peers: Vec<&str> = names.iter().copied().filter(|n| *n != "raymesh").collect();
     println!(
         "\n| mesh | threads | {} |",
-        names
-            .iter()
-            .map(|n| format!("{n} build ms"))
-            .collect::<Vec<_>>()
-            .join(" | ")
+        cells(names, |n| format!("{n} build ms"))
     );
     println!("| --- | --- |{}", " --- |".repeat(names.len()));
-    let mut keys: Vec<(String, usize)> =
-        builds.iter().map(|b| (b.mesh.clone(), b.threads)).collect();
+    let mut keys: Vec<(&str, usize)> = builds
+        .iter()
+        .map(|b| (b.mesh.as_str(), b.threads))
+        .collect();
     keys.dedup();
-    for (mesh, t) in &keys {
-        let cells: Vec<String> = names
-            .iter()
-            .map(|n| {
-                builds
-                    .iter()
-                    .find(|b| &b.mesh == mesh && b.threads == *t && b.engine == *n)
-                    .map_or(String::new(), |b| format!("{:.1}", b.build_ms))
-            })
-            .collect();
-        println!("| {mesh} | {t} | {} |", cells.join(" | "));
+    for (mesh, t) in keys {
+        let row = cells(names, |n| {
+            builds
+                .iter()
+                .find(|b| b.mesh == mesh && b.threads == t && b.engine == *n)
+                .map_or(String::new(), |b| format!("{:.1}", b.build_ms))
+        });
+        println!("| {mesh} | {t} | {row} |");
     }
     println!("\n| mesh | engine | bytes/triangle |");
     println!("| --- | --- | --- |");
@@ -409,55 +412,26 @@ fn markdown(names: &[&str], builds: &[Build], traces: &[Trace], threads: &[usize
     }
     println!(
         "\n| mesh | workload | threads | query | {} | {} |",
-        names
-            .iter()
-            .map(|n| format!("{n} Mrays/s"))
-            .collect::<Vec<_>>()
-            .join(" | "),
-        peers
-            .iter()
-            .map(|p| format!("raymesh / {p}"))
-            .collect::<Vec<_>>()
-            .join(" | ")
+        cells(names, |n| format!("{n} Mrays/s")),
+        cells(&peers, |p| format!("raymesh / {p}"))
     );
     println!(
         "| --- | --- | --- | --- |{}",
         " --- |".repeat(names.len() + peers.len())
     );
+    // The trace of engine `n` in the same case as `tr`.
+    let find = |tr: &Trace, n: &str| traces.iter().find(|r| r.engine == n && r.same_case(tr));
     for tr in traces.iter().filter(|tr| tr.engine == "raymesh") {
-        let same = |tr2: &&Trace| {
-            tr2.mesh == tr.mesh
-                && tr2.workload == tr.workload
-                && tr2.threads == tr.threads
-                && tr2.query == tr.query
-        };
-        let row: Vec<&Trace> = traces.iter().filter(same).collect();
-        let speed = |n: &str| {
-            row.iter()
-                .find(|r| r.engine == n)
-                .map_or(String::new(), |r| raymesh::rate(r.mrays_per_s))
-        };
-        let ratio = |n: &str| {
-            row.iter()
-                .find(|r| r.engine == n)
-                .map_or(String::new(), |r| format!("{:.2}", r.raymesh_ratio))
-        };
         println!(
             "| {} | {} | {} | {} | {} | {} |",
             tr.mesh,
             tr.workload,
             tr.threads,
             tr.query,
-            names
-                .iter()
-                .map(|n| speed(n))
-                .collect::<Vec<_>>()
-                .join(" | "),
-            peers
-                .iter()
-                .map(|n| ratio(n))
-                .collect::<Vec<_>>()
-                .join(" | ")
+            cells(names, |n| find(tr, n)
+                .map_or(String::new(), |r| raymesh::rate(r.mrays_per_s))),
+            cells(&peers, |n| find(tr, n)
+                .map_or(String::new(), |r| format!("{:.2}", r.raymesh_ratio)))
         );
     }
     let reference = names[0];
@@ -467,38 +441,16 @@ fn markdown(names: &[&str], builds: &[Build], traces: &[Trace], threads: &[usize
     }
     println!(
         "\n| mesh | workload | query | {} |",
-        others
-            .iter()
-            .map(|n| format!("{n}: hits agree with {reference}"))
-            .collect::<Vec<_>>()
-            .join(" | ")
+        cells(&others, |n| format!("{n}: hits agree with {reference}"))
     );
     println!("| --- | --- | --- |{}", " --- |".repeat(others.len()));
     for tr in traces
         .iter()
         .filter(|tr| tr.engine == reference && tr.threads == threads[0])
     {
-        let cells: Vec<String> = others
-            .iter()
-            .map(|n| {
-                traces
-                    .iter()
-                    .find(|r| {
-                        r.engine == *n
-                            && r.mesh == tr.mesh
-                            && r.workload == tr.workload
-                            && r.threads == tr.threads
-                            && r.query == tr.query
-                    })
-                    .map_or(String::new(), |r| format!("{:.3}%", 100.0 * r.agree))
-            })
-            .collect();
-        println!(
-            "| {} | {} | {} | {} |",
-            tr.mesh,
-            tr.workload,
-            tr.query,
-            cells.join(" | ")
-        );
+        let agree = cells(&others, |n| {
+            find(tr, n).map_or(String::new(), |r| format!("{:.3}%", 100.0 * r.agree))
+        });
+        println!("| {} | {} | {} | {agree} |", tr.mesh, tr.workload, tr.query);
     }
 }
