@@ -6,6 +6,7 @@
 //! `cargo bench -p raymesh-bench --bench kernels`
 
 use criterion::{criterion_group, criterion_main, Criterion};
+use raymesh::workload::SplitMix;
 use raymesh_accel::bvh::{BoxRay, Node8};
 use raymesh_accel::{
     set_simd_enabled, Aabb, AccelKind, PrimHit, Primitives, Ray, Scene, Surface, TriangleMesh,
@@ -14,19 +15,16 @@ use raymesh_accel::{
 use raymesh_geometry::intersect_triangle;
 use std::hint::black_box;
 
-/// A fixed pseudo-random stream (SplitMix64), so every run measures the same input.
-struct Rng(u64);
+/// A fixed pseudo-random stream (the workloads' SplitMix64), so every run
+/// measures the same input.
+struct Rng(SplitMix);
 
 impl Rng {
-    fn f(&mut self) -> f32 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        ((z ^ (z >> 31)) >> 40) as f32 / (1u64 << 24) as f32
+    fn new(seed: u64) -> Self {
+        Self(SplitMix::new(seed))
     }
     fn v(&mut self) -> Vec3 {
-        Vec3::new(self.f(), self.f(), self.f())
+        Vec3::new(self.0.next_f32(), self.0.next_f32(), self.0.next_f32())
     }
 }
 
@@ -41,7 +39,7 @@ fn rays(rng: &mut Rng) -> Vec<Ray> {
 }
 
 fn kernels(c: &mut Criterion) {
-    let mut rng = Rng(7);
+    let mut rng = Rng::new(7);
     let rays = rays(&mut rng);
     let boxes: Vec<Aabb> = (0..8)
         .map(|_| {
@@ -120,7 +118,7 @@ fn kernels(c: &mut Criterion) {
         let tm = TriangleMesh::new(mesh.positions.clone(), mesh.triangles());
         let scene = Scene::from_mesh(&tm, AccelKind::FASTEST_BVH);
         let b = scene.bounds();
-        let mut rng = Rng(11);
+        let mut rng = Rng::new(11);
         let queries: Vec<Ray> = (0..256)
             .map(|_| {
                 let o = b.centroid() + (rng.v() - 0.5).normalize_or_zero() * b.diagonal();
