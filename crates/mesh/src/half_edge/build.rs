@@ -48,7 +48,7 @@ impl RepairReport {
 
 /// Faces with the same vertex set as an earlier face. Faces are bucketed
 /// by their lowest vertex, so only faces sharing it are compared.
-fn repeated_faces(mesh: &IndexedMesh) -> Vec<u32> {
+pub(super) fn repeated_faces(mesh: &IndexedMesh) -> Vec<u32> {
     let nv = mesh.num_vertices();
     let mut start = vec![0u32; nv + 1];
     for f in mesh.faces() {
@@ -143,7 +143,6 @@ impl HalfEdgeMesh {
             }
         }
         face_start.push(corner_v.len() as u32);
-        report.repeated_faces = repeated_faces(mesh);
         let nc = corner_v.len();
         let nv = positions.len();
         let mut corner_face = vec![0u32; nc];
@@ -157,7 +156,9 @@ impl HalfEdgeMesh {
         }
         let corner_to: Vec<u32> = (0..nc).map(|c| corner_v[corner_next[c] as usize]).collect();
         let head = |c: usize| corner_to[c];
-        // Outgoing corners of each vertex (CSR).
+        // Outgoing corners of each vertex (CSR), in corner order, with
+        // their head vertices alongside (`out_to`), so that scanning a
+        // vertex's outgoing edges reads two short contiguous runs.
         let mut out_start = vec![0u32; nv + 1];
         for &v in &corner_v {
             out_start[v as usize + 1] += 1;
@@ -167,57 +168,93 @@ impl HalfEdgeMesh {
         }
         let mut fill = out_start.clone();
         let mut out = vec![0u32; nc];
+        let mut out_to = vec![0u32; nc];
         for (c, &v) in corner_v.iter().enumerate() {
-            out[fill[v as usize] as usize] = c as u32;
+            let k = fill[v as usize] as usize;
+            out[k] = c as u32;
+            out_to[k] = corner_to[c];
             fill[v as usize] += 1;
         }
-        let outgoing =
-            |v: u32| &out[out_start[v as usize] as usize..out_start[v as usize + 1] as usize];
+        drop(fill);
+        let range = |v: u32| out_start[v as usize] as usize..out_start[v as usize + 1] as usize;
+        let outgoing = |v: u32| &out[range(v)];
 
-        // Pair each corner a→b with an unpaired b→a. Each vertex pair is
-        // counted once, at its lowest corner.
+        // Pair each corner a→b with an unpaired b→a (the first in corner
+        // order), vertex by vertex, corners in order. Each vertex pair is
+        // counted once, at its lowest corner. A corner paired cleanly from
+        // the other side (exactly one corner each way) has nothing left to
+        // check.
         const NONE: u32 = u32::MAX;
         let mut pair = vec![NONE; nc];
+        let mut clean = vec![false; nc];
         let mut bad_face = vec![false; nf];
         let mut cut = 0usize;
-        for c in 0..nc {
-            let (a, b) = (corner_v[c], head(c));
-            let same = outgoing(a)
-                .iter()
-                .filter(|&&d| corner_to[d as usize] == b)
-                .count();
-            let (mut opposite, mut free) = (0usize, NONE);
-            for &d in outgoing(b) {
-                if corner_to[d as usize] == a {
-                    opposite += 1;
-                    if free == NONE && pair[d as usize] == NONE {
-                        free = d;
+        for a in 0..nv as u32 {
+            let ra = range(a);
+            for k in ra.clone() {
+                let c = out[k] as usize;
+                if clean[c] {
+                    continue;
+                }
+                let b = out_to[k];
+                let same = out_to[ra.clone()].iter().filter(|&&t| t == b).count();
+                let (mut opposite, mut free) = (0usize, NONE);
+                let rb = range(b);
+                for (&d, &t) in out[rb.clone()].iter().zip(&out_to[rb]) {
+                    if t == a {
+                        opposite += 1;
+                        if free == NONE && pair[d as usize] == NONE {
+                            free = d;
+                        }
+                    }
+                }
+                let total = same + opposite;
+                if total > 2 || same > 1 {
+                    let first = outgoing(a)
+                        .iter()
+                        .filter(|&&d| corner_to[d as usize] == b)
+                        .chain(outgoing(b).iter().filter(|&&d| corner_to[d as usize] == a))
+                        .all(|&d| d as usize >= c);
+                    if total > 2 {
+                        report.non_manifold_edges += first as usize;
+                    } else {
+                        report.inconsistent_edges += first as usize;
+                    }
+                    bad_face[corner_face[c] as usize] = true;
+                }
+                if pair[c] == NONE {
+                    if free != NONE {
+                        pair[c] = free;
+                        pair[free as usize] = c as u32;
+                        clean[free as usize] = total == 2 && same == 1;
+                    } else if total > 1 {
+                        cut += 1;
                     }
                 }
             }
-            let total = same + opposite;
-            if total > 2 || same > 1 {
-                let first = outgoing(a)
-                    .iter()
-                    .filter(|&&d| corner_to[d as usize] == b)
-                    .chain(outgoing(b).iter().filter(|&&d| corner_to[d as usize] == a))
-                    .all(|&d| d as usize >= c);
-                if total > 2 {
-                    report.non_manifold_edges += first as usize;
-                } else {
-                    report.inconsistent_edges += first as usize;
-                }
-                bad_face[corner_face[c] as usize] = true;
-            }
-            if pair[c] == NONE {
-                if free != NONE {
-                    pair[c] = free;
-                    pair[free as usize] = c as u32;
-                } else if total > 1 {
-                    cut += 1;
-                }
-            }
         }
+        drop(clean);
+        let triangles = face_start.windows(2).all(|w| w[1] - w[0] == 3);
+        report.repeated_faces = if triangles
+            && report.degenerate_faces.is_empty()
+            && report.non_manifold_edges + report.inconsistent_edges == 0
+        {
+            // Two triangles with one vertex set share all three edges, and
+            // here an edge has at most two faces: a triangle is repeated
+            // exactly when its three corners pair with the same earlier face.
+            (0..nf)
+                .filter(|&f| {
+                    let g = |k: usize| match pair[3 * f + k] {
+                        NONE => NONE,
+                        d => corner_face[d as usize],
+                    };
+                    g(0) < f as u32 && g(0) == g(1) && g(0) == g(2)
+                })
+                .map(|f| f as u32)
+                .collect()
+        } else {
+            repeated_faces(mesh)
+        };
 
         // Half-edges: a paired corner pair is one edge; an unpaired corner gets a boundary twin.
         let mut corner_he = vec![HalfEdge::INVALID; nc];

@@ -120,6 +120,17 @@ fn repairs_keep_every_face_and_report_them() {
     assert_eq!(r.repeated_faces, vec![1]);
     assert_eq!(r.degenerate_faces, vec![2]);
     assert_eq!(h.num_faces(), 3);
+    // A closed pillow (one triangle, both ways round) beside a triangle:
+    // every edge has two faces, and the second face repeats the first.
+    let (h, r) = build(
+        &IndexedMesh::from_triangles(p(6), &[[3, 4, 5], [0, 1, 2], [2, 1, 0], [1, 0, 2]]).unwrap(),
+    );
+    assert_eq!(r.repeated_faces, vec![2, 3]);
+    assert_eq!(h.num_faces(), 4);
+    let (_, r) =
+        build(&IndexedMesh::from_triangles(p(6), &[[3, 4, 5], [0, 1, 2], [2, 1, 0]]).unwrap());
+    assert_eq!(r.repeated_faces, vec![2]);
+    assert_eq!(r.non_manifold_edges + r.inconsistent_edges, 0);
     // Strict mode names the faces.
     let m = IndexedMesh::from_triangles(p(5), &[[0, 1, 2], [1, 0, 3], [0, 1, 4]]).unwrap();
     let e = HalfEdgeMesh::build(&m, BuildOptions { strict: true })
@@ -210,8 +221,40 @@ proptest! {
             prop_assert_eq!([pos(f[0]), pos(f[1]), pos(f[2])], [m.positions[t[0] as usize], m.positions[t[1] as usize], m.positions[t[2] as usize]]);
         }
         if r.is_clean() {
-            prop_assert_eq!(back, m);
+            prop_assert_eq!(&back, &m);
         }
+        // The builder finds repeats from its edge pairing where it can:
+        // the same faces as comparing vertex sets.
+        prop_assert_eq!(&r.repeated_faces, &super::build::repeated_faces(&m), "{:?}", tris);
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 2000, failure_persistence: None, ..ProptestConfig::default() })]
+
+    /// Few triangles, some repeated with either winding and in any
+    /// rotation (closed pillows, which leave every edge with two faces):
+    /// the repeats found from the edge pairing are exactly the faces whose
+    /// vertex set an earlier face has.
+    #[test]
+    fn repeats_found_from_the_pairing_match_vertex_sets(
+        tris in proptest::collection::vec((0u32..9, 0u32..9, 0u32..9), 1..5),
+        copies in proptest::collection::vec((0usize..5, any::<bool>(), 0usize..3, 0usize..6), 0..4),
+    ) {
+        let p: Vec<Vec3> = (0..9).map(|i| Vec3::new(i as f32, (i * 3 % 5) as f32, (i % 2) as f32)).collect();
+        let mut all: Vec<[u32; 3]> = tris.into_iter().map(|(a, b, c)| [a, b, c]).collect();
+        for (i, flip, rot, at) in copies {
+            let mut t = all[i % all.len()];
+            if flip {
+                t.swap(1, 2);
+            }
+            t.rotate_left(rot);
+            all.insert(at.min(all.len()), t);
+        }
+        let m = IndexedMesh::from_triangles(p, &all).unwrap();
+        let (h, r) = HalfEdgeMesh::build(&m, BuildOptions::default()).unwrap();
+        prop_assert!(h.validate().is_ok());
+        prop_assert_eq!(&r.repeated_faces, &super::build::repeated_faces(&m), "{:?}", all);
     }
 }
 
