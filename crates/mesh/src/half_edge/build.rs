@@ -295,6 +295,9 @@ impl HalfEdgeMesh {
         // partner of the corner before it, clockwise to the corner after its
         // partner. A vertex is manifold when one fan reaches all its corners.
         let corner_prev = |c: usize| {
+            if triangles {
+                return if c % 3 == 0 { c + 2 } else { c - 1 };
+            }
             let f = corner_face[c] as usize;
             if c == face_start[f] as usize {
                 face_start[f + 1] as usize - 1
@@ -310,9 +313,34 @@ impl HalfEdgeMesh {
             let p = pair[c];
             (p != NONE).then(|| corner_next[p as usize] as usize)
         };
+        // The corners one fan reaches from `c0`, `k` at most: turning
+        // counter-clockwise until back at `c0` (a closed fan) or at a
+        // boundary, then clockwise from `c0` to the other boundary. The two
+        // turns are inverses, so no corner is counted twice.
+        let fan_size = |c0: usize, k: usize| {
+            let (mut n, mut c) = (1, c0);
+            while let Some(x) = ccw(c) {
+                if x == c0 || n > k {
+                    return n;
+                }
+                (n, c) = (n + 1, x);
+            }
+            c = c0;
+            while let Some(x) = cw(c) {
+                if n > k {
+                    break;
+                }
+                (n, c) = (n + 1, x);
+            }
+            n
+        };
         let mut fan_of = vec![u32::MAX; nc];
         for v in 0..nv as u32 {
             let outs = outgoing(v);
+            if outs.len() <= 1 || fan_size(outs[0] as usize, outs.len()) == outs.len() {
+                // One fan reaches every corner: the common case, no labels.
+                continue;
+            }
             let mut fans = 0u32;
             for &c0 in outs {
                 if fan_of[c0 as usize] != u32::MAX {
