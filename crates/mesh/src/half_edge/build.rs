@@ -258,8 +258,13 @@ impl HalfEdgeMesh {
 
         // Half-edges: a paired corner pair is one edge; an unpaired corner gets a boundary twin.
         let mut corner_he = vec![HalfEdge::INVALID; nc];
+        let edges = (0..nc)
+            .filter(|&c| pair[c] == NONE || (c as u32) < pair[c])
+            .count();
         let mut m = HalfEdgeMesh {
             positions,
+            h_link: Vec::with_capacity(2 * edges),
+            h_face: Vec::with_capacity(2 * edges),
             ..Self::default()
         };
         for c in 0..nc {
@@ -334,12 +339,16 @@ impl HalfEdgeMesh {
             }
             n
         };
-        let mut fan_of = vec![u32::MAX; nc];
+        // Fan labels, made only once a vertex has several fans.
+        let mut fan_of = Vec::new();
         for v in 0..nv as u32 {
             let outs = outgoing(v);
             if outs.len() <= 1 || fan_size(outs[0] as usize, outs.len()) == outs.len() {
                 // One fan reaches every corner: the common case, no labels.
                 continue;
+            }
+            if fan_of.is_empty() {
+                fan_of = vec![u32::MAX; nc];
             }
             let mut fans = 0u32;
             for &c0 in outs {
