@@ -330,66 +330,79 @@ impl<const W: usize> WideBvh<W> {
         let tmin = ray.tmin();
         let mut tmax = ray.tmax();
         let mut stack = Stack::new();
-        stack.push(Entry {
+        // The item being visited: the nearest child entered goes straight
+        // here instead of through the stack (one push and pop fewer per
+        // node), the others onto the stack farthest first.
+        let mut cur = Entry {
             child: 0,
             count: 0,
             entry: tmin,
-        });
-        while let Some(e) = stack.pop() {
-            if e.entry > cull_bound(tmax) {
-                continue;
-            }
-            if e.count > 0 {
-                for _ in 0..e.count {
+        };
+        loop {
+            if cur.count > 0 {
+                for _ in 0..cur.count {
                     counter.prim();
                 }
-                tmax = block(e.child, e.count);
+                tmax = block(cur.child, cur.count);
                 if tmax < tmin {
                     return;
                 }
-                continue;
-            }
-            counter.node();
-            let i = e.child as usize;
-            let mut t = [0.0f32; W];
-            let mut mask = test(i, &r, cull_bound(tmax), &mut t);
-            let n = &self.nodes[i];
-            if mask & mask.wrapping_sub(1) == 0 {
-                // At most one child entered: no sorting.
+            } else {
+                counter.node();
+                let i = cur.child as usize;
+                let mut t = [0.0f32; W];
+                let mut mask = test(i, &r, cull_bound(tmax), &mut t);
+                let n = &self.nodes[i];
                 if mask != 0 {
                     let k = mask.trailing_zeros() as usize;
-                    stack.push(Entry {
+                    mask &= mask - 1;
+                    let first = Entry {
                         child: n.child[k],
                         count: n.count[k],
                         entry: t[k],
-                    });
+                    };
+                    if mask == 0 {
+                        // One child entered: no sorting.
+                        cur = first;
+                        continue;
+                    }
+                    // Sort the entered children by entry, farthest first.
+                    let mut hits = [Entry::NONE; W];
+                    hits[0] = first;
+                    let mut h = 1;
+                    while mask != 0 {
+                        let k = mask.trailing_zeros() as usize;
+                        mask &= mask - 1;
+                        let item = Entry {
+                            child: n.child[k],
+                            count: n.count[k],
+                            entry: t[k],
+                        };
+                        let mut j = h;
+                        while ORDERED && j > 0 && hits[j - 1].entry < item.entry {
+                            hits[j] = hits[j - 1];
+                            j -= 1;
+                        }
+                        hits[j] = item;
+                        h += 1;
+                    }
+                    for item in &hits[..h - 1] {
+                        if item.count == 0 {
+                            simd::prefetch(&self.nodes[item.child as usize]);
+                        }
+                        stack.push(*item);
+                    }
+                    cur = hits[h - 1];
+                    continue;
                 }
-                continue;
             }
-            // Sort the entered children by entry, farthest first, then push.
-            let mut hits = [Entry::NONE; W];
-            let mut h = 0;
-            while mask != 0 {
-                let k = mask.trailing_zeros() as usize;
-                mask &= mask - 1;
-                let item = Entry {
-                    child: n.child[k],
-                    count: n.count[k],
-                    entry: t[k],
-                };
-                let mut j = h;
-                while ORDERED && j > 0 && hits[j - 1].entry < item.entry {
-                    hits[j] = hits[j - 1];
-                    j -= 1;
+            // Pop the next item still in reach; equal entries stay (ties by index).
+            loop {
+                let Some(e) = stack.pop() else { return };
+                if e.entry <= cull_bound(tmax) {
+                    cur = e;
+                    break;
                 }
-                hits[j] = item;
-                h += 1;
-            }
-            for item in &hits[..h] {
-                if item.count == 0 {
-                    simd::prefetch(&self.nodes[item.child as usize]);
-                }
-                stack.push(*item);
             }
         }
     }
