@@ -145,16 +145,39 @@ impl HalfEdgeMesh {
         face_start.push(corner_v.len() as u32);
         let nc = corner_v.len();
         let nv = positions.len();
-        let mut corner_face = vec![0u32; nc];
-        let mut corner_next = vec![0u32; nc];
-        for f in 0..nf {
-            let (s, e) = (face_start[f] as usize, face_start[f + 1] as usize);
-            for c in s..e {
-                corner_face[c] = f as u32;
-                corner_next[c] = if c + 1 == e { s as u32 } else { c as u32 + 1 };
+        // Each corner's face and the next corner round it: arithmetic for
+        // triangle meshes (corner 3f + i), two arrays for polygons.
+        let triangles = face_start.windows(2).all(|w| w[1] - w[0] == 3);
+        let (mut faces, mut nexts) = (Vec::new(), Vec::new());
+        if !triangles {
+            (faces, nexts) = (vec![0u32; nc], vec![0u32; nc]);
+            for f in 0..nf {
+                let (s, e) = (face_start[f] as usize, face_start[f + 1] as usize);
+                for c in s..e {
+                    faces[c] = f as u32;
+                    nexts[c] = if c + 1 == e { s as u32 } else { c as u32 + 1 };
+                }
             }
         }
-        let corner_to: Vec<u32> = (0..nc).map(|c| corner_v[corner_next[c] as usize]).collect();
+        let corner_face = |c: usize| {
+            if triangles {
+                (c / 3) as u32
+            } else {
+                faces[c]
+            }
+        };
+        let corner_next = |c: usize| {
+            if triangles {
+                if c % 3 == 2 {
+                    c - 2
+                } else {
+                    c + 1
+                }
+            } else {
+                nexts[c] as usize
+            }
+        };
+        let corner_to: Vec<u32> = (0..nc).map(|c| corner_v[corner_next(c)]).collect();
         let head = |c: usize| corner_to[c];
         // Outgoing corners of each vertex (CSR), in corner order, with
         // their head vertices alongside (`out_to`), so that scanning a
@@ -220,7 +243,7 @@ impl HalfEdgeMesh {
                     } else {
                         report.inconsistent_edges += first as usize;
                     }
-                    bad_face[corner_face[c] as usize] = true;
+                    bad_face[corner_face(c) as usize] = true;
                 }
                 if pair[c] == NONE {
                     if free != NONE {
@@ -234,7 +257,6 @@ impl HalfEdgeMesh {
             }
         }
         drop(clean);
-        let triangles = face_start.windows(2).all(|w| w[1] - w[0] == 3);
         report.repeated_faces = if triangles
             && report.degenerate_faces.is_empty()
             && report.non_manifold_edges + report.inconsistent_edges == 0
@@ -246,7 +268,7 @@ impl HalfEdgeMesh {
                 .filter(|&f| {
                     let g = |k: usize| match pair[3 * f + k] {
                         NONE => NONE,
-                        d => corner_face[d as usize],
+                        d => corner_face(d as usize),
                     };
                     g(0) < f as u32 && g(0) == g(1) && g(0) == g(2)
                 })
@@ -277,7 +299,7 @@ impl HalfEdgeMesh {
                 to: Vertex(head(c)),
                 next: HalfEdge::INVALID,
             });
-            m.h_face.push(Face(corner_face[c]));
+            m.h_face.push(Face(corner_face(c)));
             let d = pair[c];
             m.h_link.push(Link {
                 to: Vertex(corner_v[c]),
@@ -285,14 +307,14 @@ impl HalfEdgeMesh {
             });
             if d != NONE {
                 corner_he[d as usize] = h.twin();
-                m.h_face.push(Face(corner_face[d as usize]));
+                m.h_face.push(Face(corner_face(d as usize)));
             } else {
                 m.h_face.push(Face::INVALID);
             }
         }
         report.added_edges = cut;
         for c in 0..nc {
-            m.h_link[corner_he[c].idx()].next = corner_he[corner_next[c] as usize];
+            m.h_link[corner_he[c].idx()].next = corner_he[corner_next(c)];
         }
         m.f_half = (0..nf).map(|f| corner_he[face_start[f] as usize]).collect();
 
@@ -303,7 +325,7 @@ impl HalfEdgeMesh {
             if triangles {
                 return if c % 3 == 0 { c + 2 } else { c - 1 };
             }
-            let f = corner_face[c] as usize;
+            let f = corner_face(c) as usize;
             if c == face_start[f] as usize {
                 face_start[f + 1] as usize - 1
             } else {
@@ -316,7 +338,7 @@ impl HalfEdgeMesh {
         };
         let cw = |c: usize| {
             let p = pair[c];
-            (p != NONE).then(|| corner_next[p as usize] as usize)
+            (p != NONE).then(|| corner_next(p as usize))
         };
         // The corners one fan reaches from `c0`, `k` at most: turning
         // counter-clockwise until back at `c0` (a closed fan) or at a
@@ -373,7 +395,7 @@ impl HalfEdgeMesh {
             }
             report.non_manifold_vertices += 1;
             for &c in outs {
-                bad_face[corner_face[c as usize] as usize] = true;
+                bad_face[corner_face(c as usize) as usize] = true;
             }
             for fan in 1..fans {
                 let nv2 = Vertex::new(m.positions.len());
