@@ -353,14 +353,18 @@ impl<const W: usize> WideBvh<W> {
                 let mut t = [0.0f32; W];
                 let mut mask = test(i, &r, cull_bound(tmax), &mut t);
                 let n = &self.nodes[i];
-                if mask != 0 {
+                // The lowest child left in `mask`, taken out of it.
+                let take = |mask: &mut u32| {
                     let k = mask.trailing_zeros() as usize;
-                    mask &= mask - 1;
-                    let first = Entry {
+                    *mask &= *mask - 1;
+                    Entry {
                         child: n.child[k],
                         count: n.count[k],
                         entry: t[k],
-                    };
+                    }
+                };
+                if mask != 0 {
+                    let first = take(&mut mask);
                     if mask == 0 {
                         // One child entered: no sorting.
                         cur = first;
@@ -371,13 +375,7 @@ impl<const W: usize> WideBvh<W> {
                     hits[0] = first;
                     let mut h = 1;
                     while mask != 0 {
-                        let k = mask.trailing_zeros() as usize;
-                        mask &= mask - 1;
-                        let item = Entry {
-                            child: n.child[k],
-                            count: n.count[k],
-                            entry: t[k],
-                        };
+                        let item = take(&mut mask);
                         let mut j = h;
                         while ORDERED && j > 0 && hits[j - 1].entry < item.entry {
                             hits[j] = hits[j - 1];
