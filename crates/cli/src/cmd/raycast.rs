@@ -57,6 +57,7 @@ struct Report {
     mrays_per_s: f64,
     bytes_per_triangle: f64,
     nodes: usize,
+    leaves: usize,
     depth: usize,
     sah_cost: f64,
     any_hit: bool,
@@ -172,6 +173,7 @@ pub fn run(args: &Args) -> Result<()> {
         },
         bytes_per_triangle: stats.bytes as f64 / ntri.max(1) as f64,
         nodes: stats.nodes,
+        leaves: stats.leaves,
         depth: stats.depth,
         sah_cost: stats.sah_cost,
         any_hit: args.any_hit,
@@ -196,8 +198,8 @@ pub fn run(args: &Args) -> Result<()> {
             args.repeat, report.trace_ms, report.mrays_per_s
         );
         println!(
-            "structure size     {:.1} bytes/triangle, {} nodes, depth {}",
-            report.bytes_per_triangle, report.nodes, report.depth
+            "structure size     {:.1} bytes/triangle, {} nodes, {} leaves, depth {}",
+            report.bytes_per_triangle, report.nodes, report.leaves, report.depth
         );
         println!("SAH cost           {:.2}", report.sah_cost);
         if let (Some(n), Some(p)) = (report.nodes_per_ray, report.prims_per_ray) {
