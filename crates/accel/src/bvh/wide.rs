@@ -14,6 +14,7 @@ use crate::{AccelStats, Leaf, RayCounter};
 use raymesh_geometry::{
     cull_bound, max_nan_second as max_ns, min_nan_second as min_ns, Aabb, Ray, Vec3, ROBUST_EXIT,
 };
+use std::sync::atomic::{AtomicU64, Ordering};
 
 /// `W` children: boxes by axis and lane, and for each child either a node
 /// index (`count == 0`) or a leaf's first primitive slot and count. An
@@ -145,6 +146,7 @@ impl<const W: usize> WideBvh<W> {
     /// up fuller and fewer than by greedily opening the largest child.
     #[must_use]
     pub fn from_binary(mut bin: Bvh) -> Self {
+        const { assert!(W >= 2 && W <= 8, "the collapse packs W choices in a u64") };
         let mut out = Self {
             nodes: Vec::new(),
             prim_ids: std::mem::take(&mut bin.prim_ids),
@@ -156,13 +158,15 @@ impl<const W: usize> WideBvh<W> {
         // Read the binary nodes where they lie (no copy of them): the
         // collapse's peak is the binary tree, its choices (W bytes a node)
         // and the wide tree.
-        let mut plan = Plan::<W> {
+        let plan = Plan::<W> {
             bin: &bin,
-            choice: vec![[0; W]; bin.pairs.len() * 2],
+            choice: (0..bin.pairs.len() * 2)
+                .map(|_| AtomicU64::new(0))
+                .collect(),
         };
-        plan.cost(0);
+        plan.cost(0, 0);
         let root = bin.node(0);
-        if plan.choice[0][0] == 0 {
+        if plan.choice(0)[0] == 0 {
             let (first, count) = leaf_range(&bin, 0).expect("a leaf choice has a range");
             let mut n = WideNode::<W>::EMPTY;
             n.set_box(0, root.bounds());
@@ -185,7 +189,7 @@ impl<const W: usize> WideBvh<W> {
         let mut node = WideNode::<W>::EMPTY;
         for (i, &k) in kids.iter().enumerate() {
             node.set_box(i, plan.bin.node(k).bounds());
-            if plan.choice[k as usize][0] == 0 {
+            if plan.choice(k)[0] == 0 {
                 let (first, count) = leaf_range(plan.bin, k).expect("a leaf choice has a range");
                 node.child[i] = first;
                 node.count[i] = count;
@@ -412,41 +416,73 @@ const NODE_COST: f32 = 1.0;
 const BLOCK_COST: f32 = 1.5;
 
 /// The collapse's choices for each binary node `n`, filled bottom-up by
-/// [`Plan::cost`]. `choice[n][0]`: 0 when `n` becomes one wide leaf, else
-/// `n` becomes a wide node whose slots are `k` slots of its left subtree
-/// and `W - k` of its right. `choice[n][s - 1]` for `s` in `2..=W`, when
-/// `n`'s subtree fills at most `s` slots of its parent: 0 for `s - 1`
-/// slots, else `k` of its left subtree and `s - k` of its right.
+/// [`Plan::cost`], `W` bytes packed in one word (written once each, by
+/// parallel tasks). Byte 0: 0 when `n` becomes one wide leaf, else `n`
+/// becomes a wide node whose slots are `k` slots of its left subtree and
+/// `W - k` of its right. Byte `s - 1`, for `s` in `2..=W`, when `n`'s
+/// subtree fills at most `s` slots of its parent: 0 for `s - 1` slots,
+/// else `k` of its left subtree and `s - k` of its right.
 struct Plan<'a, const W: usize> {
     bin: &'a Bvh,
-    choice: Vec<[u8; W]>,
+    choice: Vec<AtomicU64>,
 }
 
+/// Binary tree levels whose two subtrees are planned in parallel rayon
+/// tasks (up to 2^8 tasks; below, one task walks its whole subtree).
+const PAR_LEVELS: usize = 8;
+
+const _: () = assert!(BLOCK <= u8::MAX as usize);
+
 impl<const W: usize> Plan<'_, W> {
+    /// The choices made for binary node `n`.
+    fn choice(&self, n: u32) -> [u8; W] {
+        let word = self.choice[n as usize]
+            .load(Ordering::Relaxed)
+            .to_le_bytes();
+        std::array::from_fn(|i| word[i])
+    }
+
     /// The least SAH cost (unscaled by the root's area) of binary node
     /// `n`'s subtree filling at most `s` slots of its parent, for each `s`
-    /// in `1..=W` (index `s - 1`); records the choices.
-    fn cost(&mut self, n: u32) -> [f32; W] {
+    /// in `1..=W` (index `s - 1`), and the subtree's slots when it can be
+    /// one wide leaf (as [`leaf_range`]); records the choices. `level` is
+    /// `n`'s depth, for the parallel split.
+    fn cost(&self, n: u32, level: usize) -> ([f32; W], Option<(u32, u32)>) {
         let node = *self.bin.node(n);
         let area = node.bounds().half_area();
-        let range = leaf_range(self.bin, n);
-        let leaf = range.map_or(f32::INFINITY, |(_, c)| {
-            area * BLOCK_COST * c.div_ceil(BLOCK as u32) as f32
-        });
+        let leaf_cost = |(_, c): (u32, u32)| area * BLOCK_COST * c.div_ceil(BLOCK as u32) as f32;
         if node.is_leaf() {
-            return [leaf; W];
+            let range = (node.index, node.count);
+            return ([leaf_cost(range); W], Some(range));
         }
-        let (l, r) = (self.cost(node.index), self.cost(node.index + 1));
+        let ((l, lr), (r, rr)) = if level < PAR_LEVELS {
+            rayon::join(
+                || self.cost(node.index, level + 1),
+                || self.cost(node.index + 1, level + 1),
+            )
+        } else {
+            (
+                self.cost(node.index, level + 1),
+                self.cost(node.index + 1, level + 1),
+            )
+        };
+        let range = lr.zip(rr).and_then(|(a, b)| merge_ranges(a, b));
+        let leaf = range.map_or(f32::INFINITY, leaf_cost);
+        // Slots past a subtree's `useful` ones cost the same as its last
+        // useful one (a pair of binary leaves has one each), so more of
+        // them are never better.
+        let useful = |c: &[f32; W]| (1..W).find(|&s| c[s..].iter().all(|&x| x == c[s - 1]));
+        let (lu, ru) = (useful(&l).unwrap_or(W), useful(&r).unwrap_or(W));
         // The best split of `s` slots between the two subtrees.
         let split = |s: usize| {
-            (1..s)
+            (s.saturating_sub(ru).max(1)..=lu.min(s - 1))
                 .map(|k| (l[k - 1] + r[s - k - 1], k))
                 .min_by(|a, b| a.0.total_cmp(&b.0))
                 .expect("two slots or more")
         };
         let mut c = [0.0; W];
-        let mut choice = [0u8; W];
-        let (inner, k) = split(W);
+        let mut choice = [0u8; 8];
+        let (inner, k) = split(W.min(lu + ru));
         let inner = inner + area * NODE_COST;
         // A leaf only where the subtree makes one (NaN costs, from
         // infinite boxes, choose it too).
@@ -456,6 +492,10 @@ impl<const W: usize> Plan<'_, W> {
             (inner, k as u8)
         };
         for s in 2..=W {
+            if s > lu + ru {
+                c[s - 1] = c[s - 2];
+                continue;
+            }
             let (spread, k) = split(s);
             (c[s - 1], choice[s - 1]) = if spread < c[s - 2] {
                 (spread, k as u8)
@@ -463,13 +503,13 @@ impl<const W: usize> Plan<'_, W> {
                 (c[s - 2], 0)
             };
         }
-        self.choice[n as usize] = choice;
-        c
+        self.choice[n as usize].store(u64::from_le_bytes(choice), Ordering::Relaxed);
+        (c, range)
     }
 
     /// The binary nodes that fill the slots of the wide node made of `n`.
     fn children(&self, n: u32, out: &mut Vec<u32>) {
-        let k = self.choice[n as usize][0] as usize;
+        let k = self.choice(n)[0] as usize;
         let first = self.bin.node(n).index;
         self.slots(first, k, out);
         self.slots(first + 1, W - k, out);
@@ -477,19 +517,28 @@ impl<const W: usize> Plan<'_, W> {
 
     /// The binary nodes that fill at most `s` slots with `n`'s subtree.
     fn slots(&self, n: u32, s: usize, out: &mut Vec<u32>) {
+        let choice = self.choice(n);
         let mut s = s;
-        while s > 1 && self.choice[n as usize][s - 1] == 0 {
+        while s > 1 && choice[s - 1] == 0 {
             s -= 1;
         }
         if s == 1 {
             out.push(n);
         } else {
-            let k = self.choice[n as usize][s - 1] as usize;
+            let k = choice[s - 1] as usize;
             let first = self.bin.node(n).index;
             self.slots(first, k, out);
             self.slots(first + 1, s - k, out);
         }
     }
+}
+
+/// Two subtrees' slot ranges as one wide leaf's, when they are adjacent
+/// and hold at most [`BLOCK`] primitives together.
+fn merge_ranges(a: (u32, u32), b: (u32, u32)) -> Option<(u32, u32)> {
+    let (first, count) = (a.0.min(b.0), a.1 + b.1);
+    let contiguous = a.0 + a.1 == b.0 || b.0 + b.1 == a.0;
+    (contiguous && count as usize <= BLOCK).then_some((first, count))
 }
 
 /// The slots of binary node `k` as one wide leaf `(first, count)`: its own
@@ -514,9 +563,7 @@ fn range_within(bin: &Bvh, k: u32, levels: usize) -> Option<(u32, u32)> {
     }
     let a = range_within(bin, n.index, levels - 1)?;
     let b = range_within(bin, n.index + 1, levels - 1)?;
-    let (first, count) = (a.0.min(b.0), a.1 + b.1);
-    let contiguous = a.0 + a.1 == b.0 || b.0 + b.1 == a.0;
-    (contiguous && count as usize <= BLOCK).then_some((first, count))
+    merge_ranges(a, b)
 }
 
 /// What a node test needs of a ray: origin, reciprocal direction, which
