@@ -644,8 +644,10 @@ impl Entry {
 }
 
 /// Items kept inline; a tree deep enough to need more (each level adds at
-/// most `W - 1`) spills to the heap instead of failing.
-const INLINE: usize = 64;
+/// most `W - 1`) spills to the heap instead of failing. 32 rather than 64:
+/// the array is set up for every ray, and short rays feel it (shadow
+/// any-hit rays +5–12% on bunny00 and the dragon, alternated runs).
+const INLINE: usize = 32;
 
 /// A traversal stack: a small inline array (cheap to set up per ray) that
 /// spills to a `Vec` on degenerate trees, so no depth bound is needed.
@@ -691,6 +693,25 @@ impl Stack {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The stack gives items back last in, first out, past its inline
+    /// part too.
+    #[test]
+    fn stack_spills_and_keeps_order() {
+        let mut stack = Stack::new();
+        let n = 3 * INLINE as u32 + 5;
+        for i in 0..n {
+            stack.push(Entry {
+                child: i,
+                count: 0,
+                entry: i as f32,
+            });
+        }
+        for i in (0..n).rev() {
+            assert_eq!(stack.pop().map(|e| e.child), Some(i));
+        }
+        assert!(stack.pop().is_none());
+    }
 
     /// The public node test agrees with the one-box slab test on every
     /// child, with the SIMD kernels on and off, empty slots never entered.
