@@ -223,7 +223,7 @@ impl HalfEdgeMesh {
                 let same = out_to[ra.clone()].iter().filter(|&&t| t == b).count();
                 let (mut opposite, mut free) = (0usize, NONE);
                 let rb = range(b);
-                for (&d, &t) in out[rb.clone()].iter().zip(&out_to[rb]) {
+                for (&d, &t) in out[rb.clone()].iter().zip(&out_to[rb.clone()]) {
                     if t == a {
                         opposite += 1;
                         if free == NONE && pair[d as usize] == NONE {
@@ -233,11 +233,11 @@ impl HalfEdgeMesh {
                 }
                 let total = same + opposite;
                 if total > 2 || same > 1 {
-                    let first = outgoing(a)
-                        .iter()
-                        .filter(|&&d| corner_to[d as usize] == b)
-                        .chain(outgoing(b).iter().filter(|&&d| corner_to[d as usize] == a))
-                        .all(|&d| d as usize >= c);
+                    let first = ra
+                        .clone()
+                        .filter(|&j| out_to[j] == b)
+                        .chain(rb.filter(|&j| out_to[j] == a))
+                        .all(|j| out[j] as usize >= c);
                     if total > 2 {
                         report.non_manifold_edges += first as usize;
                     } else {
