@@ -152,6 +152,12 @@ impl IndexedMesh {
             .map(|w| &self.indices[w[0] as usize..w[1] as usize])
     }
 
+    /// Where each face starts in [`Self::indices`], and one past the last face's end.
+    #[inline]
+    pub(crate) fn face_starts(&self) -> &[u32] {
+        &self.face_starts
+    }
+
     /// All faces' indices back to back (see [`Self::face`] for one face).
     #[must_use]
     pub fn indices(&self) -> &[u32] {
