@@ -41,17 +41,16 @@ pub fn vertex_normals(mesh: &IndexedMesh) -> Vec<Vec3> {
 #[inline]
 #[must_use]
 pub fn fast_angle(cross: f32, dot: f32) -> f32 {
+    // Selects, not branches: which of the two is larger is a coin toss
+    // from one corner to the next, and mispredictions cost twice the math.
     let (y, x) = (cross, dot.abs());
-    let (num, den, swap) = if y > x { (x, y, true) } else { (y, x, false) };
-    if den == 0.0 {
-        return 0.0;
-    }
-    let t = num / den; // in [0, 1]
+    let (num, den) = (x.min(y), x.max(y));
+    let t = if den > 0.0 { num / den } else { 0.0 }; // in [0, 1]
     let t2 = t * t;
     let a = t
         * (0.999_866
             + t2 * (-0.330_299_5 + t2 * (0.180_141 + t2 * (-0.085_133 + t2 * 0.020_835_1))));
-    let a = if swap {
+    let a = if y > x {
         std::f32::consts::FRAC_PI_2 - a
     } else {
         a
