@@ -14,7 +14,7 @@ impl HalfEdgeMesh {
         self.num_halfedges() - self.boundary_halfedge_count() == 3 * self.num_faces()
     }
 
-    fn boundary_halfedge_count(&self) -> usize {
+    pub(crate) fn boundary_halfedge_count(&self) -> usize {
         self.h_face.iter().filter(|f| !f.is_valid()).count()
     }
 

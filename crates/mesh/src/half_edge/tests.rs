@@ -187,9 +187,72 @@ fn normals_point_out_of_a_closed_mesh() {
         let p = h.position(Vertex::new(v)).normalize();
         assert!(n.dot(p) > 0.95, "vertex {v}: {n} vs {p}");
     }
-    let flat = crate::normals::vertex_normals(&h.to_indexed());
-    for (a, b) in flat.iter().zip(h.vertex_normals()) {
-        assert!((*a - b).length() < 1e-5);
+}
+
+/// The half-edge mesh's normals (gathered around vertices, with a fast
+/// arctangent) match the indexed mesh's (scattered from faces, with `acos`)
+/// on closed and open meshes, quads, holes and degenerate triangles.
+#[test]
+fn normals_match_the_indexed_meshs() {
+    for name in [
+        "sphere.ply",
+        "mesh_with_border.off",
+        "cube_quad.off",
+        "elephant-with-holes.off",
+        "degtri_sliding.off",
+        "double-torus-example.off",
+    ] {
+        let (h, _) = build(&data(name));
+        let flat = crate::normals::vertex_normals(&h.to_indexed());
+        let gathered = h.vertex_normals();
+        assert_eq!(flat.len(), gathered.len());
+        for (v, (a, b)) in flat.iter().zip(&gathered).enumerate() {
+            assert!((*a - *b).length() < 1e-4, "{name} vertex {v}: {a} vs {b}");
+        }
+    }
+    // A mixed mesh: a quad and a triangle sharing an edge, and a pentagon.
+    let p = vec![
+        Vec3::ZERO,
+        Vec3::X,
+        Vec3::new(1.0, 1.0, 0.2),
+        Vec3::Y,
+        Vec3::new(0.5, -1.0, 0.3),
+        Vec3::new(2.0, 0.0, 0.0),
+        Vec3::new(3.0, 0.0, 0.1),
+        Vec3::new(3.0, 1.0, 0.0),
+        Vec3::new(2.5, 1.5, 0.0),
+        Vec3::new(2.0, 1.0, 0.0),
+    ];
+    let mut m = IndexedMesh::new();
+    m.positions = p;
+    for f in [&[0u32, 1, 2, 3][..], &[0, 4, 1], &[5, 6, 7, 8, 9]] {
+        m.push_face_unchecked(f);
+    }
+    let (h, _) = build(&m);
+    let flat = crate::normals::vertex_normals(&m);
+    for (v, (a, b)) in flat.iter().zip(h.vertex_normals()).enumerate() {
+        assert!((*a - b).length() < 1e-4, "vertex {v}: {a} vs {b}");
+    }
+}
+
+/// Deleted faces add nothing: normals after deleting faces equal those
+/// after collecting the garbage.
+#[test]
+fn normals_skip_deleted_faces() {
+    let (mut h, _) = build(&data("sphere.ply"));
+    for f in (0..h.num_faces()).step_by(7) {
+        h.delete_face(Face::new(f));
+    }
+    let before = h.vertex_normals();
+    let kept: Vec<Vec3> = (0..h.num_vertices())
+        .filter(|&v| !h.is_deleted_vertex(Vertex::new(v)))
+        .map(|v| before[v])
+        .collect();
+    h.garbage_collect();
+    let after = h.vertex_normals();
+    assert_eq!(kept.len(), after.len());
+    for (a, b) in kept.iter().zip(&after) {
+        assert!((*a - *b).length() < 1e-6, "{a} vs {b}");
     }
 }
 
