@@ -14,6 +14,7 @@ pub mod handle;
 mod indexed;
 pub mod io;
 pub mod normals;
+pub mod packed;
 pub mod synthetic;
 pub mod winged_edge;
 
