@@ -238,13 +238,56 @@ impl HalfEdgeMesh {
                 })
                 .collect::<Vec<_>>()
         });
+        // Corners wait in batches of eight (structure of arrays) before
+        // their angles are taken: the arctangents of a batch are
+        // independent, so they overlap (and vectorize) where one corner at
+        // a time would wait on each square root and division in turn.
+        const BATCH: usize = 8;
+        #[derive(Clone, Copy)]
+        struct Batch {
+            /// |e_out × e_in| and e_out · e_in: the angle's sine and cosine parts.
+            sin: [f32; BATCH],
+            cos: [f32; BATCH],
+            /// Each corner adds `dir * angle / div`: a triangle's cross
+            /// product over its length, or a polygon's unit normal over 1.
+            div: [f32; BATCH],
+            dir: [Vec3; BATCH],
+            n: usize,
+        }
+        impl Batch {
+            const EMPTY: Self = Self {
+                sin: [0.0; BATCH],
+                cos: [1.0; BATCH],
+                div: [1.0; BATCH],
+                dir: [Vec3::ZERO; BATCH],
+                n: 0,
+            };
+            fn flush(&mut self, sum: &mut Vec3) {
+                let mut w = [0.0f32; BATCH];
+                for i in 0..BATCH {
+                    w[i] = fast_angle(self.sin[i], self.cos[i]) / self.div[i];
+                }
+                for i in 0..self.n {
+                    *sum += self.dir[i] * w[i];
+                }
+                *self = Self::EMPTY;
+            }
+            fn push(&mut self, sum: &mut Vec3, sin: f32, cos: f32, div: f32, dir: Vec3) {
+                let i = self.n;
+                (self.sin[i], self.cos[i], self.div[i], self.dir[i]) = (sin, cos, div, dir);
+                self.n += 1;
+                if self.n == BATCH {
+                    self.flush(sum);
+                }
+            }
+        }
         let normal = |v: usize| {
             let h0 = self.v_half[v];
             if !h0.is_valid() {
                 return Vec3::ZERO;
             }
             let p = self.positions[v];
-            let (mut sum, mut prev) = (Vec3::ZERO, h0);
+            let (mut sum, mut prev, mut batch) = (Vec3::ZERO, h0, Batch::EMPTY);
             let mut e_in = self.position(self.to_vertex(h0)) - p;
             loop {
                 // The face left of `h` has its corner at `v` between
@@ -260,13 +303,14 @@ impl HalfEdgeMesh {
                 if f.is_valid() {
                     let cross = e_out.cross(e_in);
                     let len = cross.length();
+                    let dot = e_out.dot(e_in);
                     let triangle =
                         all_triangles || self.h_link[link.next.idx()].next == prev.twin();
                     if triangle && len > 0.0 {
-                        sum += cross * (fast_angle(len, e_out.dot(e_in)) / len);
+                        batch.push(&mut sum, len, dot, len, cross);
                     } else if !triangle {
                         let n = polygons.as_ref().map_or(Vec3::ZERO, |n| n[f.idx()]);
-                        sum += n * fast_angle(len, e_out.dot(e_in));
+                        batch.push(&mut sum, len, dot, 1.0, n);
                     }
                 }
                 if h == h0 {
@@ -274,6 +318,7 @@ impl HalfEdgeMesh {
                 }
                 (prev, e_in) = (h, e_out);
             }
+            batch.flush(&mut sum);
             sum.normalize_or_zero()
         };
         (0..self.num_vertices())
