@@ -529,6 +529,8 @@ impl HalfEdgeMesh {
     }
 
     /// The indexed polygon mesh with the same vertices and faces, in order.
+    /// Deleted faces are left out; deleted vertices stay, unused, until
+    /// [`Self::garbage_collect`] renumbers them away.
     #[must_use]
     pub fn to_indexed(&self) -> IndexedMesh {
         let mut out =
@@ -536,6 +538,9 @@ impl HalfEdgeMesh {
         out.positions = self.positions.clone();
         let mut face = Vec::new();
         for f in self.faces() {
+            if self.is_deleted_face(f) {
+                continue;
+            }
             face.clear();
             face.extend(self.face_vertices(f).map(|v| v.0));
             out.push_face_unchecked(&face);

@@ -371,6 +371,8 @@ impl HalfEdgeMesh {
             self.h_face[h.idx()] = Face::INVALID;
         }
         self.mark_face_deleted(f);
+        // Its half-edges join other loops now: walks of the deleted face end at once.
+        self.f_half[f.idx()] = HalfEdge::INVALID;
         let dead: Vec<Edge> = hs
             .iter()
             .filter(|h| self.is_boundary_halfedge(h.twin()))

@@ -243,6 +243,13 @@ fn normals_skip_deleted_faces() {
     for f in (0..h.num_faces()).step_by(7) {
         h.delete_face(Face::new(f));
     }
+    // A deleted face has no half-edges left to walk (they joined other loops).
+    assert_eq!(h.face_halfedges(Face::new(0)).count(), 0);
+    assert_eq!(h.face_normal(Face::new(0)), Vec3::ZERO);
+    let live = (0..h.num_faces())
+        .filter(|&f| !h.is_deleted_face(Face::new(f)))
+        .count();
+    assert_eq!(h.to_indexed().num_faces(), live);
     let before = h.vertex_normals();
     let kept: Vec<Vec3> = (0..h.num_vertices())
         .filter(|&v| !h.is_deleted_vertex(Vertex::new(v)))
