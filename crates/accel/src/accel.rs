@@ -111,6 +111,15 @@ pub struct BuildConfig {
     /// Bins per axis of the binned SAH builders. More bins find better splits
     /// for a slower build.
     pub bins: usize,
+    /// Primitives a binary BVH's leaf tests at once. The SAH builders count
+    /// a leaf's (and a split side's) primitives in blocks of this many, as
+    /// Embree's binned builder does for its SIMD leaves, so that a leaf of
+    /// up to a block costs one test. `None`: a `Scene` picks its SIMD block
+    /// width for the binned and sweep BVHs over primitives whose leaves it
+    /// tests as blocks (triangles); everything else counts one by one, including the binary
+    /// tree a wide BVH is collapsed from (the collapse weighs blocks itself,
+    /// and a finer tree gives it more to choose from).
+    pub leaf_block: Option<usize>,
 }
 
 impl Default for BuildConfig {
@@ -120,6 +129,7 @@ impl Default for BuildConfig {
             traversal_cost: 3.0,
             grid_density: 3.0,
             bins: 32,
+            leaf_block: None,
         }
     }
 }

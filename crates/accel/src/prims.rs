@@ -43,6 +43,10 @@ pub trait Primitives: Send + Sync {
     ) -> u32 {
         intersect_each(self, first, 0..count.min(BLOCK as u32), ray, tmax, out)
     }
+    /// Whether [`Self::intersect_block`] tests a block at once (a SIMD
+    /// kernel) rather than one by one: then a binary BVH's SAH counts its
+    /// leaves in blocks (see [`crate::BuildConfig::leaf_block`]).
+    const BLOCK_TEST: bool = false;
     /// Unit geometric normal of primitive `i` at a hit (not flipped toward the ray).
     fn normal(&self, i: u32, ray: &Ray, hit: &PrimHit) -> Vec3;
     /// Puts the primitives in another order, in place: new primitive `k`
@@ -257,6 +261,7 @@ impl Triangles {
 }
 
 impl Primitives for Triangles {
+    const BLOCK_TEST: bool = true;
     #[inline]
     fn len(&self) -> usize {
         self.len
@@ -396,6 +401,7 @@ impl Primitives for Shapes {
 }
 
 impl<P: Primitives + ?Sized> Primitives for &P {
+    const BLOCK_TEST: bool = P::BLOCK_TEST;
     fn len(&self) -> usize {
         (**self).len()
     }

@@ -66,6 +66,7 @@ impl<P: Primitives> Scene<P> {
     #[must_use]
     pub fn build_with(prims: P, kind: AccelKind, config: &BuildConfig) -> Self {
         let start = Instant::now();
+        let config = &leaf_blocks::<P>(kind, config);
         let n = prims.len();
         // A BVH's root box is the union of the primitives' boxes: the
         // scene's box, with no array of boxes made.
@@ -252,6 +253,20 @@ impl<P: Primitives> Scene<P> {
     }
 }
 
+/// `config` with [`BuildConfig::leaf_block`] resolved: the SIMD block
+/// width for the SAH-built binary BVHs over primitives whose leaves are
+/// tested as blocks (a leaf of up to a block costs one test), as given
+/// otherwise.
+fn leaf_blocks<P: Primitives>(kind: AccelKind, config: &BuildConfig) -> BuildConfig {
+    let binary = matches!(kind, AccelKind::BvhBinned | AccelKind::BvhSweep);
+    BuildConfig {
+        leaf_block: config
+            .leaf_block
+            .or((binary && P::BLOCK_TEST).then_some(BLOCK)),
+        ..*config
+    }
+}
+
 impl Scene<Triangles> {
     /// The fastest scene over an indexed mesh: its triangles as
     /// [`Triangles`] rows, with the structure of `kind` (default settings).
@@ -269,6 +284,7 @@ impl Scene<Triangles> {
     #[must_use]
     pub fn from_mesh_with(mesh: &TriangleMesh, kind: AccelKind, config: &BuildConfig) -> Self {
         let start = Instant::now();
+        let config = &leaf_blocks::<Triangles>(kind, config);
         let Some(mut accel) = Accel::build_bvh_by(kind, mesh.len(), &|i| mesh.bounds(i), config)
         else {
             let mut scene = Self::build_with(Triangles::from_mesh(mesh), kind, config);

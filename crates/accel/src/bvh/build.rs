@@ -73,6 +73,8 @@ struct Ctx<'a> {
     builder: BvhBuilder,
     /// [`PAR_SUBTREE`], or more to build on one thread (tests compare both).
     par_subtree: usize,
+    /// [`BuildConfig::leaf_block`], resolved.
+    block: usize,
 }
 
 /// A subtree as the parallel recursion returns it, flattened once at the end.
@@ -185,6 +187,7 @@ impl BvhBuilder {
             config,
             builder: self,
             par_subtree,
+            block: config.leaf_block.unwrap_or(1).max(1),
         };
         let (bounds, cbounds) = ctx.bounds_pair(&refs);
         let tree = ctx.subtree(&mut refs, 0, 1, bounds, cbounds);
@@ -242,6 +245,12 @@ fn place(tree: Subtree, out: &mut Vec<NodePair>) -> Node {
 }
 
 impl Ctx<'_> {
+    /// What `n` primitives cost to test in a leaf: blocks of [`Self::block`].
+    #[inline(always)]
+    fn blocks(&self, n: usize) -> f32 {
+        n.div_ceil(self.block) as f32
+    }
+
     /// Boxes of the primitives and of their centroids, in one pass
     /// (in parallel chunks for many primitives: unions are exact, so the
     /// result does not depend on the chunking).
@@ -393,7 +402,7 @@ impl Ctx<'_> {
         apply: impl FnOnce(&mut [PrimRef]) -> usize,
     ) -> Option<usize> {
         let n = ids.len();
-        let leaf_cost = n as f32;
+        let leaf_cost = self.blocks(n);
         match best {
             Some((cost, _)) if area > 0.0 => {
                 let split_cost = self.config.traversal_cost + cost / area;
@@ -467,7 +476,8 @@ impl Ctx<'_> {
                 if lcount == 0 || rcount == 0 {
                     continue;
                 }
-                let cost = left.half_area() * lcount as f32 + right_area[b] * rcount as f32;
+                let cost = left.half_area() * self.blocks(lcount as usize)
+                    + right_area[b] * self.blocks(rcount as usize);
                 if cost < best_cost {
                     (best_cost, best_axis, best_bin, best_left) = (cost, axis, b, lcount);
                 }
@@ -543,7 +553,7 @@ impl Ctx<'_> {
             let mut lbox = Aabb::EMPTY;
             for k in 1..n {
                 lbox = lbox.union(sorted[k - 1].bounds());
-                let cost = lbox.half_area() * k as f32 + right_area[k] * (n - k) as f32;
+                let cost = lbox.half_area() * self.blocks(k) + right_area[k] * self.blocks(n - k);
                 if best.is_none_or(|(bc, _, _)| cost < bc) {
                     best = Some((cost, axis, k));
                 }
