@@ -116,9 +116,9 @@ pub struct BuildConfig {
     /// Embree's binned builder does for its SIMD leaves, so that a leaf of
     /// up to a block costs one test. `None`: a `Scene` picks its SIMD block
     /// width for the binned and sweep BVHs over primitives whose leaves it
-    /// tests as blocks (triangles); everything else counts one by one, including the binary
-    /// tree a wide BVH is collapsed from (the collapse weighs blocks itself,
-    /// and a finer tree gives it more to choose from).
+    /// tests as blocks (triangles); everything else counts one by one,
+    /// including the binary tree a wide BVH is collapsed from (the collapse
+    /// weighs blocks itself, and a finer tree gives it more to choose from).
     pub leaf_block: Option<usize>,
 }
 

@@ -122,9 +122,8 @@ impl HalfEdgeMesh {
     /// buckets are read, so a vertex's edges lie together, which makes
     /// walks around vertices cheaper. Beside the mesh, the build touches
     /// only 4 bytes per corner and 4 per vertex of new memory on triangle
-    /// meshes, 8 more per corner on polygons (the buckets
-    /// become the half-edges): first-touched pages cost more than the
-    /// passes over them.
+    /// meshes, 8 more per corner on polygons (the buckets become the
+    /// half-edges): first-touched pages cost more than the passes over them.
     pub fn build(
         mesh: &IndexedMesh,
         opts: BuildOptions,
@@ -372,9 +371,10 @@ impl HalfEdgeMesh {
             (n, false)
         };
         // A triangle that repeats an earlier one on clean edges (at most two
-        // faces each, consistently oriented) shares all three edges with it, so at each of its vertices the two make a
-        // closed fan of two corners: the vertex has several fans, or only
-        // those two corners. Without such a vertex there is no repeat.
+        // faces each, consistently oriented) shares all three edges with
+        // it, so at each of its vertices the two make a closed fan of two
+        // corners: the vertex has several fans, or only those two corners.
+        // Without such a vertex there is no repeat.
         let mut maybe_repeats = false;
         let several_fans: Vec<u32> = (0..nv as u32)
             .filter(|&v| {

@@ -240,8 +240,8 @@ impl HalfEdgeMesh {
         });
         // Corners wait in batches of eight (structure of arrays) before
         // their angles are taken: the arctangents of a batch are
-        // independent, so they overlap (and vectorize) where one corner at
-        // a time would wait on each square root and division in turn.
+        // independent, so the processor overlaps them where one corner at a
+        // time would wait on each division in turn.
         const BATCH: usize = 8;
         #[derive(Clone, Copy)]
         struct Batch {

@@ -207,7 +207,10 @@ fn normals_match_the_indexed_meshs() {
         let gathered = h.vertex_normals();
         assert_eq!(flat.len(), gathered.len());
         for (v, (a, b)) in flat.iter().zip(&gathered).enumerate() {
-            assert!((*a - *b).length() < 1e-4, "{name} vertex {v}: {a} vs {b}");
+            // The fast arctangent is within 2e-5 rad of `acos`; on the
+            // sphere's regular triangles the two agree more closely.
+            let tol = if name == "sphere.ply" { 1e-5 } else { 1e-4 };
+            assert!((*a - *b).length() < tol, "{name} vertex {v}: {a} vs {b}");
         }
     }
     // A mixed mesh: a quad and a triangle sharing an edge, and a pentagon.
@@ -381,11 +384,8 @@ fn winged_edge_and_compact_agree_with_half_edge() {
         assert!(per_vertex(w.memory_bytes()) > per_vertex(h.memory_bytes()));
         if let Some(c) = &c {
             assert!(per_vertex(c.memory_bytes()) < per_vertex(h.memory_bytes()));
-            // Issue 3's bound, with 12-byte positions, on closed meshes
-            // (about six corners a vertex; boundaries have more per vertex).
-            if h.boundary_loops().is_empty() {
-                assert!(per_vertex(c.memory_bytes()) <= 56.0, "{name}");
-            }
+            // Issue 3's bound, with 12-byte positions.
+            assert!(per_vertex(c.memory_bytes()) <= 56.0, "{name}");
         }
     }
 }
