@@ -172,9 +172,11 @@ pub const BLOCK: usize = 8;
 /// layout for ray queries, at the price of a copy of the mesh.
 #[derive(Clone, Debug, Default)]
 pub struct Triangles {
-    /// Row `3 * corner + axis`; each has [`BLOCK`] padding lanes at the end
-    /// so that a block load never reads past it.
-    rows: [Vec<f32>; 9],
+    /// The nine rows one after another: row `3 * corner + axis` is
+    /// `data[r * stride..][..len]`, followed by [`BLOCK`] padding lanes so
+    /// that a block load never reads past it (`stride = len + BLOCK`). One
+    /// allocation, so that one bounds check covers a block's nine loads.
+    data: Vec<f32>,
     len: usize,
 }
 
@@ -182,39 +184,18 @@ impl Triangles {
     /// Triangles given by their corners.
     #[must_use]
     pub fn from_corners(corners: &[[Vec3; 3]]) -> Self {
-        let mut rows: [Vec<f32>; 9] = Default::default();
-        for (r, row) in rows.iter_mut().enumerate() {
-            row.reserve_exact(corners.len() + BLOCK);
-            row.extend(corners.iter().map(|c| c[r / 3][r % 3]));
-            row.resize(corners.len() + BLOCK, 0.0);
-        }
-        Self {
-            rows,
-            len: corners.len(),
-        }
+        Self::gather(corners.len(), |r, i| corners[i][r / 3][r % 3])
     }
 
     /// The corners of an indexed mesh's triangles, in the mesh's order.
     ///
-    /// Gathers one row at a time, in parallel, with no copy of the corners
-    /// in between: the peak is the mesh plus the rows.
+    /// Gathers the rows in parallel, with no copy of the corners in
+    /// between: the peak is the mesh plus the rows.
     #[must_use]
     pub fn from_mesh(mesh: &TriangleMesh) -> Self {
-        let rows = std::array::from_fn(|r| {
-            let (corner, axis) = (r / 3, r % 3);
-            let mut row = Vec::with_capacity(mesh.len() + BLOCK);
-            row.par_extend(
-                mesh.triangles
-                    .par_iter()
-                    .map(|t| mesh.positions[t[corner] as usize][axis]),
-            );
-            row.resize(mesh.len() + BLOCK, 0.0);
-            row
-        });
-        Self {
-            rows,
-            len: mesh.len(),
-        }
+        Self::gather(mesh.len(), |r, i| {
+            mesh.positions[mesh.triangles[i][r / 3] as usize][r % 3]
+        })
     }
 
     /// The corners of an indexed mesh's triangles in the order `order`
@@ -223,21 +204,31 @@ impl Triangles {
     /// is made and then permuted.
     #[must_use]
     pub fn from_mesh_in_order(mesh: &TriangleMesh, order: &[u32]) -> Self {
-        let rows = std::array::from_fn(|r| {
-            let (corner, axis) = (r / 3, r % 3);
-            let mut row = Vec::with_capacity(order.len() + BLOCK);
-            row.par_extend(
-                order
-                    .par_iter()
-                    .map(|&i| mesh.positions[mesh.triangles[i as usize][corner] as usize][axis]),
-            );
-            row.resize(order.len() + BLOCK, 0.0);
-            row
-        });
-        Self {
-            rows,
-            len: order.len(),
-        }
+        Self::gather(order.len(), |r, k| {
+            mesh.positions[mesh.triangles[order[k] as usize][r / 3] as usize][r % 3]
+        })
+    }
+
+    /// `len` triangles whose row `r` holds `value(r, i)` in lane `i`,
+    /// filled in parallel (the zeroed allocation is only touched there).
+    fn gather(len: usize, value: impl Fn(usize, usize) -> f32 + Sync) -> Self {
+        let stride = len + BLOCK;
+        let mut data = vec![0.0f32; 9 * stride];
+        data.par_chunks_mut(stride)
+            .enumerate()
+            .for_each(|(r, row)| {
+                row[..len]
+                    .par_iter_mut()
+                    .enumerate()
+                    .for_each(|(i, x)| *x = value(r, i));
+            });
+        Self { data, len }
+    }
+
+    /// Distance between two rows in `data`.
+    #[inline(always)]
+    fn stride(&self) -> usize {
+        self.len + BLOCK
     }
 
     /// The corners of triangle `i`.
@@ -245,18 +236,20 @@ impl Triangles {
     #[must_use]
     pub fn corners(&self, i: u32) -> [Vec3; 3] {
         let i = i as usize;
-        let r = &self.rows;
+        assert!(i < self.len);
+        let s = self.stride();
+        let r = |k: usize| self.data[k * s + i];
         [
-            Vec3::new(r[0][i], r[1][i], r[2][i]),
-            Vec3::new(r[3][i], r[4][i], r[5][i]),
-            Vec3::new(r[6][i], r[7][i], r[8][i]),
+            Vec3::new(r(0), r(1), r(2)),
+            Vec3::new(r(3), r(4), r(5)),
+            Vec3::new(r(6), r(7), r(8)),
         ]
     }
 
     /// Bytes of the corner rows.
     #[must_use]
     pub fn bytes(&self) -> usize {
-        self.rows.iter().map(|r| r.len() * 4).sum()
+        self.data.len() * 4
     }
 }
 
@@ -294,8 +287,11 @@ impl Primitives for Triangles {
         assert!(first + count <= self.len);
         #[cfg(target_arch = "x86_64")]
         if crate::simd::has_avx2() {
-            let rows = std::array::from_fn(|r| &self.rows[r][first..first + BLOCK]);
-            let (mask, redo) = crate::simd::triangles8(rows, count, ray, tmax, out);
+            let (mask, redo) =
+                crate::simd::triangles8(&self.data, self.stride(), first, count, ray, tmax, out);
+            if redo == 0 {
+                return mask;
+            }
             // Lanes whose edge function rounded to zero take the scalar
             // test's f64 path.
             let lanes = (0..count as u32).filter(|k| redo >> k & 1 != 0);
@@ -310,10 +306,10 @@ impl Primitives for Triangles {
     fn reorder(&mut self, order: &[u32]) -> bool {
         assert_eq!(order.len(), self.len, "a permutation of the triangles");
         // One row at a time: the copy costs one row of memory, not nine.
-        for row in &mut self.rows {
-            let mut new = permuted(&row[..order.len()], order);
-            new.resize(order.len() + BLOCK, 0.0);
-            *row = new;
+        let (len, stride) = (self.len, self.stride());
+        for row in self.data.chunks_exact_mut(stride) {
+            let new = permuted(&row[..len], order);
+            row[..len].copy_from_slice(&new);
         }
         true
     }

@@ -147,22 +147,26 @@ unsafe fn slab8_avx(
 }
 
 /// The watertight ray–triangle test of
-/// [`raymesh_geometry::intersect_triangle`] on up to 8 triangles at once,
-/// given as 9 rows (corner × axis) of at least 8 floats; lanes `count..`
-/// are ignored. Returns the mask of lanes hit (their `t`, `u`, `v` written
-/// to `out`) and the mask of lanes whose edge function rounded to exactly
-/// zero: those need the scalar test's f64 path, and are not in the hit mask.
-/// Panics if a row is short or the CPU lacks AVX2.
+/// [`raymesh_geometry::intersect_triangle`] on up to 8 triangles at once:
+/// lanes `first..first + count` of 9 rows (corner × axis) laid `stride`
+/// floats apart in `data`; lanes past `count` are ignored. Returns the
+/// mask of lanes hit (their `t`, `u`, `v` written to `out`) and the mask
+/// of lanes whose edge function rounded to exactly zero: those need the
+/// scalar test's f64 path, and are not in the hit mask. Panics if a row
+/// would be read past `data` or the CPU lacks AVX2.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 pub(crate) fn triangles8(
-    rows: [&[f32]; 9],
+    data: &[f32],
+    stride: usize,
+    first: usize,
     count: usize,
     ray: &Ray,
     tmax: f32,
     out: &mut [PrimHit; 8],
 ) -> (u32, u32) {
-    assert!(rows.iter().all(|r| r.len() >= 8));
+    // Row 8's lanes end at 8 * stride + first + 8, inside 9 * stride.
+    assert!(first + 8 <= stride && 9 * stride <= data.len());
     assert!(cpu_has_avx2());
     let active = if count >= 8 {
         0xff
@@ -170,11 +174,13 @@ pub(crate) fn triangles8(
         (1u32 << count) - 1
     };
     let (mut t, mut u, mut v) = ([0.0f32; 8], [0.0f32; 8], [0.0f32; 8]);
-    // SAFETY: each row holds at least 8 floats (asserted), the outputs are
-    // 8 floats, and the CPU has AVX2 (asserted).
+    // SAFETY: lanes `first..first + 8` of each of the 9 rows lie inside
+    // `data` (asserted), the outputs are 8 floats, and the CPU has AVX2
+    // (asserted).
     let (hit, redo) = unsafe {
         triangles8_avx(
-            rows.map(<[f32]>::as_ptr),
+            data.as_ptr().add(first),
+            stride,
             ray,
             tmax,
             [t.as_mut_ptr(), u.as_mut_ptr(), v.as_mut_ptr()],
@@ -195,13 +201,15 @@ pub(crate) fn triangles8(
 }
 
 /// # Safety
-/// The CPU must have AVX; each row pointer must address 8 readable floats
-/// and each output pointer 8 writable ones.
+/// The CPU must have AVX; `rows.add(r * stride)` must address 8 readable
+/// floats for each row `r` in `0..9`, and each output pointer 8 writable
+/// ones.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
 unsafe fn triangles8_avx(
-    rows: [*const f32; 9],
+    rows: *const f32,
+    stride: usize,
     ray: &Ray,
     tmax: f32,
     out: [*mut f32; 3],
@@ -224,9 +232,9 @@ unsafe fn triangles8_avx(
     // the intrinsics inline into this AVX2 function).
     macro_rules! shear {
         ($c:expr) => {{
-            let x = _mm256_sub_ps(_mm256_loadu_ps(rows[3 * $c + kx]), ox);
-            let y = _mm256_sub_ps(_mm256_loadu_ps(rows[3 * $c + ky]), oy);
-            let z = _mm256_sub_ps(_mm256_loadu_ps(rows[3 * $c + kz]), oz);
+            let x = _mm256_sub_ps(_mm256_loadu_ps(rows.add((3 * $c + kx) * stride)), ox);
+            let y = _mm256_sub_ps(_mm256_loadu_ps(rows.add((3 * $c + ky) * stride)), oy);
+            let z = _mm256_sub_ps(_mm256_loadu_ps(rows.add((3 * $c + kz) * stride)), oz);
             (
                 _mm256_sub_ps(x, _mm256_mul_ps(sx, z)),
                 _mm256_sub_ps(y, _mm256_mul_ps(sy, z)),
