@@ -369,20 +369,25 @@ mod tests {
         #[test]
         fn avx_triangles_match_scalar(
             tris in proptest::collection::vec(
-                prop_oneof![(vec3(), vec3(), vec3()), (lattice(), lattice(), lattice())], 8),
-            count in 0usize..9,
+                prop_oneof![(vec3(), vec3(), vec3()), (lattice(), lattice(), lattice())], 16),
+            first in 0usize..9, count in 0usize..9, extra in 0usize..9,
             o in prop_oneof![vec3(), lattice()], d in prop_oneof![vec3(), lattice()],
             tmin in prop_oneof![Just(0.0f32), coord()], tmax in coord(),
         ) {
             prop_assume!(cpu_has_avx2());
-            let corners: Vec<[Vec3; 3]> = tris.iter().map(|&(a, b, c)| [a, b, c]).collect();
+            // A block anywhere in the rows, up to their very end (where
+            // its lanes past `count` read the padding).
+            let len = (first + count + extra).min(tris.len());
+            let corners: Vec<[Vec3; 3]> = tris[..len].iter().map(|&(a, b, c)| [a, b, c]).collect();
             let tris = crate::Triangles::from_corners(&corners);
             let ray = Ray::new(o, d, tmin, f32::INFINITY);
             let mut out = [PrimHit::default(); 8];
-            let mask = crate::Primitives::intersect_block(&tris, 0, count as u32, &ray, tmax, &mut out);
+            let mask = crate::Primitives::intersect_block(
+                &tris, first as u32, count as u32, &ray, tmax, &mut out,
+            );
             for k in 0..8 {
-                let [a, b, c] = corners[k];
                 let want = if k < count {
+                    let [a, b, c] = corners[first + k];
                     raymesh_geometry::intersect_triangle(&ray, tmax, a, b, c)
                 } else {
                     None
