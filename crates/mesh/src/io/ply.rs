@@ -370,6 +370,78 @@ pub(super) fn read(bytes: &[u8]) -> Result<IndexedMesh, MeshError> {
     Ok(mesh)
 }
 
+/// Where a vertex element of scalars only keeps `x`, `y` and `z`: each
+/// one's byte offset and type in a record, and the record's size. `None`
+/// when a property is a list or a coordinate is missing.
+fn vertex_layout(el: &Element) -> Option<([(usize, Scalar); 3], usize)> {
+    let mut stride = 0;
+    let mut at = [None; 3];
+    for (name, prop) in &el.props {
+        let Prop::Scalar(ty) = *prop else {
+            return None;
+        };
+        if let Some(axis) = [b"x".as_slice(), b"y", b"z"].iter().position(|a| a == name) {
+            at[axis] = Some((stride, ty));
+        }
+        stride += ty.size();
+    }
+    Some(([at[0]?, at[1]?, at[2]?], stride))
+}
+
+/// The count and index types of a face element whose one property is a
+/// list, and its record size if every list holds 3 indices. `None` for
+/// any other face element.
+fn face_layout(el: &Element) -> Option<(Scalar, Scalar, usize)> {
+    match el.props.as_slice() {
+        [(_, Prop::List(cty, ity))] => Some((*cty, *ity, cty.size() + 3 * ity.size())),
+        _ => None,
+    }
+}
+
+/// Parses vertex records (`out.len()` of them, `stride` bytes each) in
+/// parallel; `None` when a coordinate is not finite.
+fn parse_vertices(
+    records: &[u8],
+    (at, stride): ([(usize, Scalar); 3], usize),
+    big_endian: bool,
+    out: &mut [Vec3],
+) -> Option<()> {
+    out.par_iter_mut()
+        .zip(records.par_chunks_exact(stride))
+        .try_for_each(|(out, r)| {
+            let p = at.map(|(off, ty)| decode(&r[off..], ty, big_endian) as f32);
+            *out = Vec3::from_array(p);
+            p.iter().all(|v| v.is_finite()).then_some(())
+        })
+}
+
+/// Parses triangle records (`out.len() / 3` of them) in parallel into
+/// their indices; `None` when a list's length is not 3 or an index is not
+/// below `nv`.
+fn parse_faces(
+    records: &[u8],
+    (cty, ity, stride): (Scalar, Scalar, usize),
+    big_endian: bool,
+    nv: usize,
+    out: &mut [u32],
+) -> Option<()> {
+    out.par_chunks_exact_mut(3)
+        .zip(records.par_chunks_exact(stride))
+        .try_for_each(|(t, r)| {
+            if decode(r, cty, big_endian) != 3.0 {
+                return None;
+            }
+            for (k, v) in t.iter_mut().enumerate() {
+                let i = decode(&r[cty.size() + k * ity.size()..], ity, big_endian);
+                if !(i >= 0.0 && (i as usize) < nv) {
+                    return None;
+                }
+                *v = i as u32;
+            }
+            Some(())
+        })
+}
+
 /// Records of a binary element that all have one size, parsed in parallel:
 /// a vertex element of scalars only, or a face element whose one property
 /// is a list of 3 indices in every record. Returns the bytes used, or
@@ -389,59 +461,178 @@ fn read_fixed(
         return None;
     }
     if el.name == b"vertex" && mesh.positions.is_empty() {
-        let mut stride = 0;
-        let mut at = [None; 3];
-        for (name, prop) in &el.props {
-            let Prop::Scalar(ty) = *prop else {
-                return None;
-            };
-            if let Some(axis) = [b"x".as_slice(), b"y", b"z"].iter().position(|a| a == name) {
-                at[axis] = Some((stride, ty));
-            }
-            stride += ty.size();
-        }
-        let at = [at[0]?, at[1]?, at[2]?];
-        let records = data.get(..el.count.checked_mul(stride)?)?;
+        let layout = vertex_layout(el)?;
+        let records = data.get(..el.count.checked_mul(layout.1)?)?;
         let mut positions = vec![Vec3::ZERO; el.count];
-        positions
-            .par_iter_mut()
-            .zip(records.par_chunks_exact(stride))
-            .try_for_each(|(out, r)| {
-                let p = at.map(|(off, ty)| decode(&r[off..], ty, big_endian) as f32);
-                *out = Vec3::from_array(p);
-                p.iter().all(|v| v.is_finite()).then_some(())
-            })?;
+        parse_vertices(records, layout, big_endian, &mut positions)?;
         mesh.positions = positions;
         return Some(records.len());
     }
-    if el.name == b"face" && mesh.num_faces() == 0 && el.props.len() == 1 {
-        let Prop::List(cty, ity) = el.props[0].1 else {
-            return None;
-        };
-        let stride = cty.size() + 3 * ity.size();
-        let records = data.get(..el.count.checked_mul(stride)?)?;
+    if el.name == b"face" && mesh.num_faces() == 0 {
+        let layout = face_layout(el)?;
+        let records = data.get(..el.count.checked_mul(layout.2)?)?;
         // Written in place: no list of triangles in between.
         let mut indices = vec![0u32; 3 * el.count];
-        indices
-            .par_chunks_exact_mut(3)
-            .zip(records.par_chunks_exact(stride))
-            .try_for_each(|(t, r)| {
-                if decode(r, cty, big_endian) != 3.0 {
-                    return None;
-                }
-                for (k, v) in t.iter_mut().enumerate() {
-                    let i = decode(&r[cty.size() + k * ity.size()..], ity, big_endian);
-                    if !(i >= 0.0 && (i as usize) < nv) {
-                        return None;
-                    }
-                    *v = i as u32;
-                }
-                Some(())
-            })?;
+        parse_faces(records, layout, big_endian, nv, &mut indices)?;
         mesh.append_triangles_unchecked(indices);
         return Some(records.len());
     }
     None
+}
+
+/// What a streamed element becomes.
+enum Plan {
+    Vertices([(usize, Scalar); 3], usize),
+    Faces(Scalar, Scalar, usize),
+    /// Read past: fixed-size records of scalars.
+    Skip(usize),
+}
+
+/// Reads a binary PLY file as it comes in, `chunk` bytes at a time, each
+/// chunk's records parsed in parallel, so that the file is never held
+/// whole in memory (what a memory map would save, without one): the
+/// peak is the mesh plus one chunk. Works when the file is binary, has
+/// one `vertex` element of scalars, at most one `face` element of
+/// triangles only, and other elements of scalars only; returns `None`
+/// otherwise, and for anything wrong in the data, so that the whole-file
+/// reader, which names the byte, takes it. `progress(bytes, size)` is
+/// called after each chunk.
+pub(super) fn read_stream(
+    file: &mut impl std::io::Read,
+    size: u64,
+    chunk: usize,
+    progress: &mut dyn FnMut(u64, u64),
+) -> std::io::Result<Option<IndexedMesh>> {
+    use std::io::Read;
+    /// Longest header looked for before giving the file to the whole-file reader.
+    const MAX_HEADER: usize = 1 << 20;
+    let mut buf = Vec::new();
+    let header_end = loop {
+        let had = buf.len();
+        let n = file.by_ref().take(64 << 10).read_to_end(&mut buf)?;
+        // "end_header" may straddle the previous read: look from a little before it.
+        let from = had.saturating_sub(16);
+        if let Some(i) = find(&buf[from..], b"end_header") {
+            let at = from + i;
+            if let Some(nl) = buf[at..].iter().position(|&b| b == b'\n') {
+                break at + nl + 1;
+            }
+        }
+        if n == 0 || buf.len() > MAX_HEADER {
+            return Ok(None);
+        }
+    };
+    let Ok(h) = parse_header(&buf[..header_end]) else {
+        return Ok(None);
+    };
+    let big_endian = match h.encoding {
+        PlyEncoding::Ascii => return Ok(None),
+        e => e == PlyEncoding::BinaryBigEndian,
+    };
+    let data_size = size.saturating_sub(header_end as u64);
+    let mut plans = Vec::with_capacity(h.elements.len());
+    let (mut nv, mut nf, mut need) = (None, None, 0u128);
+    for el in &h.elements {
+        let plan = if el.name == b"vertex" && nv.is_none() {
+            nv = Some(el.count);
+            let (at, stride) = match vertex_layout(el) {
+                Some(l) => l,
+                None => return Ok(None),
+            };
+            Plan::Vertices(at, stride)
+        } else if el.name == b"face" && nf.is_none() {
+            nf = Some(el.count);
+            let Some((cty, ity, stride)) = face_layout(el) else {
+                return Ok(None);
+            };
+            Plan::Faces(cty, ity, stride)
+        } else if el.name == b"vertex" || el.name == b"face" {
+            return Ok(None);
+        } else {
+            let mut stride = 0;
+            for (_, p) in &el.props {
+                let Prop::Scalar(ty) = p else {
+                    return Ok(None);
+                };
+                stride += ty.size();
+            }
+            Plan::Skip(stride)
+        };
+        let stride = match plan {
+            Plan::Vertices(_, s) | Plan::Faces(_, _, s) | Plan::Skip(s) => s,
+        };
+        need += el.count as u128 * stride as u128;
+        plans.push(plan);
+    }
+    // A file too short for its counts goes to the reader that says where it ends.
+    if need > data_size as u128 {
+        return Ok(None);
+    }
+    let nv = nv.unwrap_or(0);
+    let mut mesh = IndexedMesh::with_capacity(0, 0, 0);
+    buf.drain(..header_end);
+    let mut done = header_end as u64;
+    for (el, plan) in h.elements.iter().zip(&plans) {
+        let stride = match *plan {
+            Plan::Vertices(_, s) | Plan::Faces(_, _, s) | Plan::Skip(s) => s,
+        };
+        let per_chunk = (chunk / stride.max(1)).max(1);
+        let mut positions = Vec::new();
+        let mut indices = Vec::new();
+        match plan {
+            Plan::Vertices(..) => positions = vec![Vec3::ZERO; el.count],
+            Plan::Faces(..) => indices = vec![0u32; 3 * el.count],
+            Plan::Skip(_) => {}
+        }
+        let mut first = 0;
+        while first < el.count {
+            let n = per_chunk.min(el.count - first);
+            let bytes = n * stride;
+            if buf.len() < bytes {
+                let want = (bytes - buf.len()) as u64;
+                if file.by_ref().take(want).read_to_end(&mut buf)? < want as usize {
+                    return Ok(None);
+                }
+            }
+            let records = &buf[..bytes];
+            let ok = match *plan {
+                Plan::Vertices(at, stride) => parse_vertices(
+                    records,
+                    (at, stride),
+                    big_endian,
+                    &mut positions[first..first + n],
+                ),
+                Plan::Faces(cty, ity, stride) => parse_faces(
+                    records,
+                    (cty, ity, stride),
+                    big_endian,
+                    nv,
+                    &mut indices[3 * first..3 * (first + n)],
+                ),
+                Plan::Skip(_) => Some(()),
+            };
+            if ok.is_none() {
+                return Ok(None);
+            }
+            buf.drain(..bytes);
+            first += n;
+            done += bytes as u64;
+            progress(done, size.max(done));
+        }
+        match plan {
+            Plan::Vertices(..) => mesh.positions = positions,
+            Plan::Faces(..) => mesh.append_triangles_unchecked(indices),
+            Plan::Skip(_) => {}
+        }
+    }
+    // Bytes after the last element are ignored, as the whole-file reader does.
+    progress(size.max(done), size.max(done));
+    Ok(Some(mesh))
+}
+
+/// Where `needle` first occurs in `hay`.
+fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
+    hay.windows(needle.len()).position(|w| w == needle)
 }
 
 /// Reads one element's records one at a time into `mesh`.

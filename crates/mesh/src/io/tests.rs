@@ -375,7 +375,187 @@ fn seeds() -> Vec<(Vec<u8>, Format)> {
     ));
     out.push((std::fs::read(data("sphere.ply")).unwrap(), Format::Ply));
     out.push((std::fs::read(data("cube_quad.off")).unwrap(), Format::Off));
+    // Triangles only, with extra properties and elements: the streamed reader's form.
+    let t = crate::synthetic::terrain(40).into_indexed();
+    out.push((odd_ply(&t, false, 2, 1), Format::Ply));
+    out.push((odd_ply(&t, true, 0, 0), Format::Ply));
     out
+}
+
+/// A binary PLY of a triangle mesh laid out unlike `write_ply`'s: `x` as
+/// a double among other vertex properties, `uint` indices after a
+/// `uchar` count, `comments` comment lines, and an `edge` element of
+/// scalars before the vertices and a `material` element after the faces
+/// when `extra > 0` (`extra` records each).
+fn odd_ply(m: &IndexedMesh, big: bool, comments: usize, extra: usize) -> Vec<u8> {
+    let enc = if big { "big" } else { "little" };
+    let mut h = format!("ply\nformat binary_{enc}_endian 1.0\n");
+    for i in 0..comments {
+        h.push_str(&format!("comment padding line {i} {}\n", "-".repeat(60)));
+    }
+    if extra > 0 {
+        h.push_str(&format!(
+            "element edge {extra}\nproperty int a\nproperty short b\n"
+        ));
+    }
+    h.push_str(&format!(
+        "element vertex {}\nproperty uchar red\nproperty double x\nproperty float y\nproperty short s\nproperty float z\n",
+        m.num_vertices()
+    ));
+    h.push_str(&format!(
+        "element face {}\nproperty list uchar uint vertex_indices\n",
+        m.num_faces()
+    ));
+    if extra > 0 {
+        h.push_str(&format!("element material {extra}\nproperty float shine\n"));
+    }
+    h.push_str("end_header\n");
+    let mut b = h.into_bytes();
+    let put = |b: &mut Vec<u8>, bytes: &[u8]| {
+        if big {
+            b.extend(bytes.iter().rev());
+        } else {
+            b.extend_from_slice(bytes);
+        }
+    };
+    for i in 0..extra {
+        put(&mut b, &(i as i32).to_le_bytes());
+        put(&mut b, &(-(i as i16)).to_le_bytes());
+    }
+    for (i, p) in m.positions.iter().enumerate() {
+        b.push(i as u8);
+        put(&mut b, &f64::from(p.x).to_le_bytes());
+        put(&mut b, &p.y.to_le_bytes());
+        put(&mut b, &(i as i16).to_le_bytes());
+        put(&mut b, &p.z.to_le_bytes());
+    }
+    for f in m.faces() {
+        b.push(f.len() as u8);
+        for &i in f {
+            put(&mut b, &i.to_le_bytes());
+        }
+    }
+    for i in 0..extra {
+        put(&mut b, &(i as f32).to_le_bytes());
+    }
+    b
+}
+
+/// The streamed PLY reader on `bytes`, `chunk` bytes at a time.
+fn streamed(bytes: &[u8], chunk: usize) -> Option<IndexedMesh> {
+    let mut calls = Vec::new();
+    let size = bytes.len() as u64;
+    let got = ply::read_stream(&mut &bytes[..], size, chunk, &mut |d, t| calls.push((d, t)))
+        .expect("reading from memory cannot fail");
+    if got.is_some() {
+        assert!(calls.windows(2).all(|w| w[0].0 <= w[1].0), "{calls:?}");
+        assert_eq!(calls.last(), Some(&(size, size)));
+    }
+    got
+}
+
+/// Binary PLYs of triangles are read as they stream in, chunk by chunk,
+/// into exactly the mesh the whole-file reader makes: both byte orders,
+/// any scalar types, properties and elements read past, a header longer
+/// than the first read, records cut anywhere by the chunks.
+#[test]
+fn streamed_ply_reads_what_the_whole_file_reader_reads() {
+    for n in [1, 30, 5000] {
+        let m = crate::synthetic::terrain(n).into_indexed();
+        for big in [false, true] {
+            let enc = if big {
+                PlyEncoding::BinaryBigEndian
+            } else {
+                PlyEncoding::BinaryLittleEndian
+            };
+            let mut plain = Vec::new();
+            write_ply(&mut plain, &m, enc).unwrap();
+            // 1000 comment lines push `end_header` past the first 64 KiB read.
+            for (bytes, what) in [
+                (plain, "write_ply"),
+                (odd_ply(&m, big, 3, 7), "odd"),
+                (odd_ply(&m, big, 1000, 2), "long header"),
+            ] {
+                let whole = read_bytes(&bytes, Format::Ply).unwrap();
+                assert_eq!(whole, m);
+                for chunk in [1, 13, 1000, 1 << 20] {
+                    assert_eq!(
+                        streamed(&bytes, chunk).as_ref(),
+                        Some(&whole),
+                        "{n} triangles, {enc:?}, {what}, chunk {chunk}"
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// Whatever the streamed reader cannot take whole it leaves to the
+/// whole-file reader (it returns `None`), so that errors keep their byte
+/// offsets and polygons still load; `read_mesh` then gives what
+/// `read_bytes` gives.
+#[test]
+fn streamed_ply_leaves_the_rest_to_the_whole_file_reader() {
+    let m = crate::synthetic::terrain(200).into_indexed();
+    let (nv, nf) = (m.num_vertices(), m.num_faces());
+    let mut b = Vec::new();
+    write_ply(&mut b, &m, PlyEncoding::BinaryLittleEndian).unwrap();
+    let data = b.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
+    let faces = data + 12 * nv;
+    assert_eq!(b.len(), faces + 13 * nf);
+    let mut ascii = Vec::new();
+    write_ply(&mut ascii, &m, PlyEncoding::Ascii).unwrap();
+    let mut quads = Vec::new();
+    write_ply(&mut quads, &sample(), PlyEncoding::BinaryLittleEndian).unwrap();
+    let edit = |at: usize, v: &[u8]| {
+        let mut c = b.clone();
+        c[at..at + v.len()].copy_from_slice(v);
+        c
+    };
+    let cases: Vec<(&str, Vec<u8>)> = vec![
+        ("ascii", ascii),
+        ("a quad", quads),
+        ("NaN", edit(data + 40 * 12 + 4, &f32::NAN.to_le_bytes())),
+        (
+            "bad index",
+            edit(faces + 70 * 13 + 5, &(nv as u32).to_le_bytes()),
+        ),
+        ("truncated", b[..b.len() - 5].to_vec()),
+        ("no end_header", b[..data - 11].to_vec()),
+        ("empty", Vec::new()),
+        (
+            "a list in another element",
+            String::from_utf8_lossy(&b[..data])
+                .replace(
+                    "end_header",
+                    "element x 0
+property list uchar int y
+end_header",
+                )
+                .into_bytes(),
+        ),
+    ];
+    let dir = std::env::temp_dir().join(format!("raymesh-stream-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    for (what, bytes) in &cases {
+        for chunk in [7, 1 << 20] {
+            assert_eq!(streamed(bytes, chunk), None, "{what}, chunk {chunk}");
+        }
+        let path = dir.join("case.ply");
+        std::fs::write(&path, bytes).unwrap();
+        let from_file = read_mesh(&path).map_err(|e| (e.kind.to_string(), e.location));
+        let from_bytes =
+            read_bytes(bytes, Format::Ply).map_err(|e| (e.kind.to_string(), e.location));
+        assert_eq!(from_file, from_bytes, "{what}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+    // A file that shrinks while it is read (its size said more) ends the stream too.
+    let short = &b[..b.len() - 5];
+    let size = b.len() as u64;
+    for chunk in [7, 1 << 20] {
+        let got = ply::read_stream(&mut &short[..], size, chunk, &mut |_, _| {}).unwrap();
+        assert_eq!(got, None, "chunk {chunk}");
+    }
 }
 
 /// Replays the inputs that once made a reader fail (kept in tests/data/fuzz).
@@ -470,13 +650,20 @@ proptest! {
     /// Mutated valid files never make a reader panic, and whatever they
     /// return is a valid mesh (every index in range, every face of 3+).
     #[test]
-    fn fuzz_mutated_files(seed in 0usize..9, muts in proptest::collection::vec(mutation(), 1..6)) {
+    fn fuzz_mutated_files(seed in 0usize..11, muts in proptest::collection::vec(mutation(), 1..6), chunk in 1usize..200) {
         let seeds = seeds();
         let (mut bytes, format) = seeds[seed % seeds.len()].clone();
         for m in &muts {
             apply(&mut bytes, m);
         }
-        if let Ok(mesh) = read_bytes(&bytes, format) {
+        let whole = read_bytes(&bytes, format);
+        // The streamed PLY reader never disagrees with the whole-file one.
+        if format == Format::Ply {
+            if let Some(m) = streamed(&bytes, chunk) {
+                prop_assert_eq!(Some(&m), whole.as_ref().ok());
+            }
+        }
+        if let Ok(mesh) = whole {
             let nv = mesh.num_vertices();
             for f in mesh.faces() {
                 prop_assert!(f.len() >= 3);
