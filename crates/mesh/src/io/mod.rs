@@ -5,9 +5,10 @@
 //! is checked against the bytes that follow before anything is allocated for
 //! it, so a header that claims 10^12 faces is an error, not an allocation.
 //! Every error names the line (text) or byte offset (binary) where it was found.
-//! Binary PLY files of triangles, the form big meshes come in, are the
-//! exception: [`read_mesh`] parses them as they stream in, chunk by chunk,
-//! and hands anything else (or anything wrong) to the whole-file reader.
+//! Binary STL files and binary PLY files of triangles, the forms big
+//! meshes come in, are the exception: [`read_mesh`] parses them as they
+//! stream in, chunk by chunk, and hands anything else (or anything wrong)
+//! to the whole-file reader.
 //!
 //! These are hand-written rather than built on tobj, ply-rs or stl_io: those
 //! report errors without a line or byte offset, and STL needs its duplicated
@@ -92,8 +93,8 @@ pub fn read_mesh_with(
 ) -> Result<IndexedMesh, MeshError> {
     let path = path.as_ref();
     let io = |e| MeshError::new(Location::File, ErrorKind::Io(e)).with_path(path);
-    if Format::from_extension(path) == Some(Format::Ply) {
-        if let Some(mesh) = read_ply_stream(path, progress).map_err(io)? {
+    if let Some(f @ (Format::Ply | Format::Stl)) = Format::from_extension(path) {
+        if let Some(mesh) = read_stream(path, f, progress).map_err(io)? {
             return Ok(mesh);
         }
     }
@@ -111,15 +112,21 @@ pub fn read_mesh_with(
     read_bytes(&bytes, format).map_err(|e| e.with_path(path))
 }
 
-/// A binary PLY file parsed as it is read (see [`ply::read_stream`]);
-/// `None` when it needs the whole-file reader.
-fn read_ply_stream(
+/// A binary PLY or STL file parsed as it is read (see
+/// [`ply::read_stream`] and [`stl::read_stream`]); `None` when it needs
+/// the whole-file reader.
+fn read_stream(
     path: &Path,
+    format: Format,
     progress: &mut dyn FnMut(u64, u64),
 ) -> std::io::Result<Option<IndexedMesh>> {
     let mut file = std::fs::File::open(path)?;
     let size = file.metadata().map_or(0, |m| m.len());
-    ply::read_stream(&mut file, size, READ_CHUNK, progress)
+    match format {
+        Format::Ply => ply::read_stream(&mut file, size, READ_CHUNK, progress),
+        Format::Stl => stl::read_stream(&mut file, size, READ_CHUNK, progress),
+        Format::Obj | Format::Off => Ok(None),
+    }
 }
 
 /// The whole file, read in chunks with `progress` after each.

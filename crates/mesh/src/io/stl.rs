@@ -110,6 +110,61 @@ fn read_binary(bytes: &[u8]) -> Result<IndexedMesh, MeshError> {
     Ok(mesh)
 }
 
+/// Reads a binary STL file as it comes in, `chunk` bytes at a time: the
+/// corners are copied out of each chunk in parallel (36 bytes a triangle,
+/// where the file takes 50), then welded as [`read`] welds them, so the
+/// file is never held whole in memory. Returns `None` for anything else
+/// (an ascii file, a size that does not match the triangle count, a
+/// corner that is not finite, a file that ends early), so that the
+/// whole-file reader, which names the byte, takes it. `progress(bytes,
+/// size)` is called after each chunk.
+pub(super) fn read_stream(
+    file: &mut impl std::io::Read,
+    size: u64,
+    chunk: usize,
+    progress: &mut dyn FnMut(u64, u64),
+) -> std::io::Result<Option<IndexedMesh>> {
+    use std::io::Read;
+    let mut head = Vec::with_capacity(84);
+    file.by_ref().take(84).read_to_end(&mut head)?;
+    if head.len() < 84 {
+        return Ok(None);
+    }
+    let n = triangle_count(&head) as usize;
+    if 84 + 50 * n as u64 != size || 3 * n as u64 > u32::MAX as u64 {
+        return Ok(None);
+    }
+    let per_chunk = (chunk / 50).max(1);
+    let mut corners = vec![Vec3::ZERO; 3 * n];
+    let mut buf = Vec::with_capacity(per_chunk.min(n) * 50);
+    let mut done = 84u64;
+    for (k, out) in corners.chunks_mut(3 * per_chunk).enumerate() {
+        let tris = out.len() / 3;
+        buf.clear();
+        if file.by_ref().take(50 * tris as u64).read_to_end(&mut buf)? < 50 * tris {
+            return Ok(None);
+        }
+        let f = |at: usize| f32::from_le_bytes([buf[at], buf[at + 1], buf[at + 2], buf[at + 3]]);
+        let finite = out.par_iter_mut().enumerate().all(|(c, p)| {
+            let at = 50 * (c / 3) + 12 + 12 * (c % 3);
+            *p = Vec3::new(f(at), f(at + 4), f(at + 8));
+            p.is_finite()
+        });
+        if !finite {
+            return Ok(None);
+        }
+        done = 84 + 50 * ((k * per_chunk + tris) as u64);
+        progress(done, size);
+    }
+    let (positions, indices) = weld(3 * n, &|c| corners[c]);
+    drop(corners);
+    let mut mesh = IndexedMesh::with_capacity(0, n, 0);
+    mesh.positions = positions;
+    mesh.append_triangles_unchecked(indices);
+    progress(size.max(done), size.max(done));
+    Ok(Some(mesh))
+}
+
 /// The welding key of a point: its bits, with -0.0 taken as 0.0.
 #[inline]
 fn weld_key(p: Vec3) -> [u32; 3] {

@@ -443,10 +443,21 @@ fn odd_ply(m: &IndexedMesh, big: bool, comments: usize, extra: usize) -> Vec<u8>
 
 /// The streamed PLY reader on `bytes`, `chunk` bytes at a time.
 fn streamed(bytes: &[u8], chunk: usize) -> Option<IndexedMesh> {
+    streamed_as(bytes, chunk, Format::Ply)
+}
+
+/// The streamed reader of `format` (PLY or STL) on `bytes`, `chunk`
+/// bytes at a time; checks that its progress rises to the file's size.
+fn streamed_as(bytes: &[u8], chunk: usize, format: Format) -> Option<IndexedMesh> {
     let mut calls = Vec::new();
     let size = bytes.len() as u64;
-    let got = ply::read_stream(&mut &bytes[..], size, chunk, &mut |d, t| calls.push((d, t)))
-        .expect("reading from memory cannot fail");
+    let mut progress = |d, t| calls.push((d, t));
+    let got = match format {
+        Format::Ply => ply::read_stream(&mut &bytes[..], size, chunk, &mut progress),
+        Format::Stl => stl::read_stream(&mut &bytes[..], size, chunk, &mut progress),
+        _ => unreachable!("only PLY and STL stream"),
+    }
+    .expect("reading from memory cannot fail");
     if got.is_some() {
         assert!(calls.windows(2).all(|w| w[0].0 <= w[1].0), "{calls:?}");
         assert_eq!(calls.last(), Some(&(size, size)));
@@ -488,6 +499,91 @@ fn streamed_ply_reads_what_the_whole_file_reader_reads() {
             }
         }
     }
+}
+
+/// Binary STL files are read as they stream in, chunk by chunk, and
+/// welded into exactly the mesh the whole-file reader makes: shared
+/// corners, -0.0 and 0.0, duplicate triangles, records cut anywhere by
+/// the chunks. Anything else goes to the whole-file reader, whose errors
+/// `read_mesh` then gives.
+#[test]
+fn streamed_stl_welds_what_the_whole_file_reader_welds() {
+    let mut meshes: Vec<Vec<[Vec3; 3]>> = [1, 30, 5000]
+        .iter()
+        .map(|&n| {
+            let m = crate::synthetic::terrain(n).into_indexed();
+            m.triangles()
+                .iter()
+                .map(|t| t.map(|i| m.positions[i as usize]))
+                .collect()
+        })
+        .collect();
+    let z = Vec3::new(-0.0, 0.0, -0.0);
+    meshes.push(vec![
+        [z, Vec3::X, Vec3::Y],
+        [Vec3::ZERO, Vec3::Y, Vec3::X],
+        [z, Vec3::X, Vec3::Y],
+    ]);
+    for tris in &meshes {
+        let bytes = stl_binary(tris);
+        let whole = read_bytes(&bytes, Format::Stl).unwrap();
+        assert_eq!(whole.num_faces(), tris.len());
+        for chunk in [1, 49, 50, 120, 1 << 20] {
+            assert_eq!(
+                streamed_as(&bytes, chunk, Format::Stl).as_ref(),
+                Some(&whole),
+                "{} triangles, chunk {chunk}",
+                tris.len()
+            );
+        }
+    }
+    let b = stl_binary(&meshes[1]);
+    let edit = |at: usize, v: &[u8]| {
+        let mut c = b.clone();
+        c[at..at + v.len()].copy_from_slice(v);
+        c
+    };
+    let mut ascii = b"solid x\nfacet normal 0 0 1\nouter loop\n".to_vec();
+    ascii.extend_from_slice(
+        b"vertex 0 0 0\nvertex 1 0 0\nvertex 0 1 0\nendloop\nendfacet\nendsolid x\n",
+    );
+    let cases: Vec<(&str, Vec<u8>)> = vec![
+        ("ascii", ascii),
+        (
+            "NaN",
+            edit(84 + 50 * 7 + 12 + 12 + 4, &f32::NAN.to_le_bytes()),
+        ),
+        (
+            "infinite",
+            edit(84 + 50 * 29 + 12 + 8, &f32::INFINITY.to_le_bytes()),
+        ),
+        ("truncated", b[..b.len() - 1].to_vec()),
+        ("a count too high", edit(80, &31u32.to_le_bytes())),
+        ("short", b[..50].to_vec()),
+        ("empty", Vec::new()),
+    ];
+    let dir = std::env::temp_dir().join(format!("raymesh-stl-stream-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    for (what, bytes) in &cases {
+        for chunk in [7, 1 << 20] {
+            assert_eq!(
+                streamed_as(bytes, chunk, Format::Stl),
+                None,
+                "{what}, chunk {chunk}"
+            );
+        }
+        let path = dir.join("case.stl");
+        std::fs::write(&path, bytes).unwrap();
+        let from_file = read_mesh(&path).map_err(|e| (e.kind.to_string(), e.location));
+        let from_bytes =
+            read_bytes(bytes, Format::Stl).map_err(|e| (e.kind.to_string(), e.location));
+        assert_eq!(from_file, from_bytes, "{what}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+    // A file that shrinks while it is read (its size said more) ends the stream too.
+    let short = &b[..b.len() - 50];
+    let got = stl::read_stream(&mut &short[..], b.len() as u64, 100, &mut |_, _| {}).unwrap();
+    assert_eq!(got, None);
 }
 
 /// Whatever the streamed reader cannot take whole it leaves to the
@@ -657,9 +753,9 @@ proptest! {
             apply(&mut bytes, m);
         }
         let whole = read_bytes(&bytes, format);
-        // The streamed PLY reader never disagrees with the whole-file one.
-        if format == Format::Ply {
-            if let Some(m) = streamed(&bytes, chunk) {
+        // The streamed readers never disagree with the whole-file ones.
+        if matches!(format, Format::Ply | Format::Stl) {
+            if let Some(m) = streamed_as(&bytes, chunk, format) {
                 prop_assert_eq!(Some(&m), whole.as_ref().ok());
             }
         }
