@@ -29,13 +29,12 @@ struct Chunk {
     error: Option<MeshError>,
 }
 
-/// Reads `bytes` in chunks of about `chunk` bytes, in parallel; the result,
-/// errors included, is what one pass over the file gives.
-fn read_chunked(bytes: &[u8], chunk: usize) -> Result<IndexedMesh, MeshError> {
-    // Split after a line end whose line does not continue (`\`), and
-    // count the lines before each piece.
+/// Splits `bytes` into pieces of about `chunk` bytes, each ending after a
+/// line end whose line does not continue (`\`) or at the end of
+/// `bytes`, with the number of lines before each (counting from `line`).
+fn pieces(bytes: &[u8], chunk: usize, mut line: u64) -> Vec<(&[u8], u64)> {
     let mut pieces: Vec<(&[u8], u64)> = Vec::new();
-    let (mut at, mut line) = (0usize, 0u64);
+    let mut at = 0usize;
     while at < bytes.len() {
         let mut end = (at + chunk.max(1)).min(bytes.len());
         while end < bytes.len() {
@@ -43,9 +42,8 @@ fn read_chunked(bytes: &[u8], chunk: usize) -> Result<IndexedMesh, MeshError> {
                 None => end = bytes.len(),
                 Some(k) => {
                     let nl = end + k;
-                    let before = bytes[..nl].strip_suffix(b"\r").unwrap_or(&bytes[..nl]);
                     end = nl + 1;
-                    if !before.ends_with(b"\\") {
+                    if !continues(&bytes[..nl]) {
                         break;
                     }
                 }
@@ -56,7 +54,102 @@ fn read_chunked(bytes: &[u8], chunk: usize) -> Result<IndexedMesh, MeshError> {
         line += piece.iter().filter(|&&b| b == b'\n').count() as u64;
         at = end;
     }
-    let chunks: Vec<Chunk> = pieces
+    pieces
+}
+
+/// Whether a line (without its `\n`) continues on the next (`\` last).
+fn continues(line: &[u8]) -> bool {
+    line.strip_suffix(b"\r").unwrap_or(line).ends_with(b"\\")
+}
+
+/// Reads an OBJ file as it comes in, about `chunk` bytes at a time: each
+/// chunk is split at line ends into pieces parsed in parallel, and their
+/// vertices and faces go into the mesh at once. The peak is the mesh plus
+/// one chunk's parse, where reading the whole file first holds the file
+/// and every face's corners as written. Returns `None` for anything wrong
+/// (an error, an index out of range, no vertex), so that the whole-file
+/// reader, which names the line, takes it. `progress(bytes, size)` is
+/// called after each chunk.
+pub(super) fn read_stream(
+    file: &mut impl std::io::Read,
+    size: u64,
+    chunk: usize,
+    progress: &mut dyn FnMut(u64, u64),
+) -> std::io::Result<Option<IndexedMesh>> {
+    use std::io::Read;
+    let chunk = chunk.max(1);
+    let mut mesh = IndexedMesh::with_capacity(0, 0, 0);
+    let (mut buf, mut face) = (Vec::new(), Vec::new());
+    let (mut done, mut max_index) = (0u64, 0u32);
+    loop {
+        let old = buf.len();
+        let eof = file.by_ref().take(chunk as u64).read_to_end(&mut buf)? < chunk;
+        // Parse up to the last line end whose line does not continue; the
+        // rest waits for the next read (all of it at the end of the file).
+        // Only the bytes just read can hold one: the rest had none.
+        let end = if eof {
+            buf.len()
+        } else {
+            let mut end = None;
+            let mut upto = buf.len();
+            while let Some(k) = buf[old..upto].iter().rposition(|&b| b == b'\n') {
+                let nl = old + k;
+                if !continues(&buf[..nl]) {
+                    end = Some(nl + 1);
+                    break;
+                }
+                upto = nl;
+            }
+            match end {
+                Some(e) => e,
+                None => continue,
+            }
+        };
+        // Line numbers only matter to errors, which the whole-file reader reports.
+        let parsed: Vec<Chunk> = pieces(&buf[..end], (chunk / 8).max(1), 0)
+            .par_iter()
+            .map(|&(piece, first_line)| parse_chunk(piece, first_line))
+            .collect();
+        for c in parsed {
+            if c.error.is_some() {
+                return Ok(None);
+            }
+            let base = mesh.positions.len() as i64;
+            for (k, &(start, _, nv_local)) in c.faces.iter().enumerate() {
+                let stop = c.faces.get(k + 1).map_or(c.corners.len(), |f| f.0);
+                let nv = base + nv_local as i64;
+                face.clear();
+                for &i in &c.corners[start..stop] {
+                    let resolved = if i < 0 { nv + i } else { i - 1 };
+                    let Ok(v) = u32::try_from(resolved) else {
+                        return Ok(None);
+                    };
+                    max_index = max_index.max(v);
+                    face.push(v);
+                }
+                mesh.push_face_unchecked(&face);
+            }
+            mesh.positions.extend_from_slice(&c.positions);
+        }
+        done += end as u64;
+        buf.drain(..end);
+        progress(done, size.max(done));
+        if eof {
+            break;
+        }
+    }
+    let nv = mesh.positions.len();
+    // Indices may name vertices further on; all must exist by the end.
+    if nv == 0 || (mesh.num_faces() > 0 && max_index as usize >= nv) {
+        return Ok(None);
+    }
+    Ok(Some(mesh))
+}
+
+/// Reads `bytes` in chunks of about `chunk` bytes, in parallel; the result,
+/// errors included, is what one pass over the file gives.
+fn read_chunked(bytes: &[u8], chunk: usize) -> Result<IndexedMesh, MeshError> {
+    let chunks: Vec<Chunk> = pieces(bytes, chunk, 0)
         .par_iter()
         .map(|&(piece, first_line)| parse_chunk(piece, first_line))
         .collect();
@@ -240,7 +333,19 @@ mod tests {
             let text = lines.join(if crlf { "\r\n" } else { "\n" });
             let one = outcome(read_chunked(text.as_bytes(), usize::MAX));
             let many = outcome(read_chunked(text.as_bytes(), chunk));
-            prop_assert_eq!(one, many);
+            prop_assert_eq!(&one, &many);
+            // Streamed in chunks: the same mesh for every file one pass
+            // reads (progress rising to the file's size), and nothing, for
+            // the whole-file reader to report, for every file it rejects.
+            let size = text.len() as u64;
+            let mut calls = Vec::new();
+            let streamed = read_stream(&mut text.as_bytes(), size, chunk, &mut |d, t| calls.push((d, t)))
+                .unwrap();
+            prop_assert!(calls.windows(2).all(|w| w[0].0 <= w[1].0));
+            if streamed.is_some() {
+                prop_assert_eq!(calls.last(), Some(&(size, size)));
+            }
+            prop_assert_eq!(streamed, one.ok());
         }
     }
 
@@ -255,6 +360,15 @@ mod tests {
         }
         let m = read_chunked(text.as_bytes(), 4096).unwrap();
         assert_eq!(m, read_chunked(text.as_bytes(), usize::MAX).unwrap());
+        for chunk in [1000, 4096, 1 << 20] {
+            let streamed = read_stream(
+                &mut text.as_bytes(),
+                text.len() as u64,
+                chunk,
+                &mut |_, _| {},
+            );
+            assert_eq!(streamed.unwrap().as_ref(), Some(&m), "chunk {chunk}");
+        }
         assert_eq!((m.num_vertices(), m.num_faces()), (30_000, 20_000));
         assert_eq!(m.face(5), &[5, 6, 29_999]);
         // An error deep in the file names its line.

@@ -501,6 +501,42 @@ fn streamed_ply_reads_what_the_whole_file_reader_reads() {
     }
 }
 
+/// OBJ files stream too: `read_mesh` on a file gives what `read_bytes`
+/// gives, the mesh or the error with its line, for good files and bad
+/// (the streamed reader leaves every bad one to the whole-file reader).
+#[test]
+fn obj_files_read_as_their_bytes_do() {
+    let mut good = String::new();
+    for i in 0..3000 {
+        good.push_str(&format!("v {i} {} 0\n", i % 5));
+    }
+    for i in 1..2999 {
+        good.push_str(&format!("f {i} {} -1 \\\n  {}\n", i + 1, i % 7 + 1));
+    }
+    let cases = [
+        good.clone(),
+        format!("{good}f 1 2 3001\n"),
+        format!("{good}f 1 2 -3001\n"),
+        format!("{good}f 1 2 0\n"),
+        format!("{good}wh@t 1 2\n"),
+        format!("{good}v 1 nan 2\n"),
+        "f 1 2 3\n".to_string(),
+        "# nothing\n".to_string(),
+    ];
+    let dir = std::env::temp_dir().join(format!("raymesh-obj-stream-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("case.obj");
+    for (k, text) in cases.iter().enumerate() {
+        std::fs::write(&path, text).unwrap();
+        let from_file = read_mesh(&path).map_err(|e| (e.kind.to_string(), e.location));
+        let from_bytes =
+            read_bytes(text.as_bytes(), Format::Obj).map_err(|e| (e.kind.to_string(), e.location));
+        assert!(from_file == from_bytes, "case {k}: {:?}", from_file.err());
+        assert_eq!(from_file.is_ok(), k == 0, "case {k}: {:?}", from_file.err());
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// Binary STL files are read as they stream in, chunk by chunk, and
 /// welded into exactly the mesh the whole-file reader makes: shared
 /// corners, -0.0 and 0.0, duplicate triangles, records cut anywhere by
