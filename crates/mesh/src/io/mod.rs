@@ -120,8 +120,14 @@ fn read_stream(
     format: Format,
     progress: &mut dyn FnMut(u64, u64),
 ) -> std::io::Result<Option<IndexedMesh>> {
+    // A pipe cannot be read twice: only a regular file may give up midway
+    // and go to the whole-file reader. (Its metadata, not an opening: a
+    // pipe's writer would see its reader go away.)
+    if !std::fs::metadata(path).is_ok_and(|m| m.is_file()) {
+        return Ok(None);
+    }
     let mut file = std::fs::File::open(path)?;
-    let size = file.metadata().map_or(0, |m| m.len());
+    let size = file.metadata()?.len();
     match format {
         Format::Ply => ply::read_stream(&mut file, size, READ_CHUNK, progress),
         Format::Stl => stl::read_stream(&mut file, size, READ_CHUNK, progress),

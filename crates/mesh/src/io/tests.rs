@@ -537,6 +537,37 @@ fn obj_files_read_as_their_bytes_do() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// A pipe is read once, by the whole-file reader: a streamed reading
+/// that gave up midway could not start over. A broken binary PLY through a
+/// named pipe gives the error its bytes give.
+#[cfg(unix)]
+#[test]
+fn pipes_are_read_once() {
+    let dir = std::env::temp_dir().join(format!("raymesh-pipe-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("mesh.ply");
+    let made = std::process::Command::new("mkfifo").arg(&path).status();
+    if !made.is_ok_and(|s| s.success()) {
+        std::fs::remove_dir_all(&dir).unwrap();
+        return; // no mkfifo here: nothing to test
+    }
+    let m = crate::synthetic::terrain(200).into_indexed();
+    let mut b = Vec::new();
+    write_ply(&mut b, &m, PlyEncoding::BinaryLittleEndian).unwrap();
+    let data = b.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
+    b[data + 7 * 12..data + 7 * 12 + 4].copy_from_slice(&f32::NAN.to_le_bytes());
+    let want = read_bytes(&b, Format::Ply).map_err(|e| (e.kind.to_string(), e.location));
+    let writer = {
+        let (path, b) = (path.clone(), b.clone());
+        std::thread::spawn(move || std::fs::write(path, b).unwrap())
+    };
+    let got = read_mesh(&path).map_err(|e| (e.kind.to_string(), e.location));
+    writer.join().unwrap();
+    std::fs::remove_dir_all(&dir).unwrap();
+    assert!(want.is_err());
+    assert_eq!(got, want);
+}
+
 /// Binary STL files are read as they stream in, chunk by chunk, and
 /// welded into exactly the mesh the whole-file reader makes: shared
 /// corners, -0.0 and 0.0, duplicate triangles, records cut anywhere by
