@@ -86,7 +86,10 @@ const READ_CHUNK: usize = 8 << 20;
 
 /// [`read_mesh`], calling `progress(bytes_read, file_size)` as the file
 /// comes in (every 8 MiB, and once at the end), so that a tool can show a
-/// progress bar while a multi-gigabyte file loads; parsing follows.
+/// progress bar while a multi-gigabyte file loads. Streamed files (OBJ,
+/// binary STL, binary PLY of triangles) are parsed as they come in; a
+/// file the streamed reader gives up on is read again from the start,
+/// whole, and parsed after (so the bytes reported start over).
 pub fn read_mesh_with(
     path: impl AsRef<Path>,
     progress: &mut dyn FnMut(u64, u64),
