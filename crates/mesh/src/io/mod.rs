@@ -5,10 +5,10 @@
 //! is checked against the bytes that follow before anything is allocated for
 //! it, so a header that claims 10^12 faces is an error, not an allocation.
 //! Every error names the line (text) or byte offset (binary) where it was found.
-//! OBJ files, binary STL files and binary PLY files of triangles, the
-//! forms big meshes come in, are the exception: [`read_mesh`] parses them
-//! as they stream in, chunk by chunk, and hands anything else (or anything
-//! wrong) to the whole-file reader.
+//! OBJ and OFF files, binary STL files and binary PLY files of triangles,
+//! the forms big meshes come in, are the exception: [`read_mesh`] parses
+//! them as they stream in, chunk by chunk, and hands anything else (or
+//! anything wrong) to the whole-file reader.
 //!
 //! These are hand-written rather than built on tobj, ply-rs or stl_io: those
 //! report errors without a line or byte offset, and STL needs its duplicated
@@ -87,7 +87,7 @@ const READ_CHUNK: usize = 8 << 20;
 /// [`read_mesh`], calling `progress(bytes_read, file_size)` as the file
 /// comes in (every 8 MiB, and once at the end), so that a tool can show a
 /// progress bar while a multi-gigabyte file loads. Streamed files (OBJ,
-/// binary STL, binary PLY of triangles) are parsed as they come in; a
+/// OFF, binary STL, binary PLY of triangles) are parsed as they come in; a
 /// file the streamed reader gives up on is read again from the start,
 /// whole, and parsed after (so the bytes reported start over).
 pub fn read_mesh_with(
@@ -96,7 +96,7 @@ pub fn read_mesh_with(
 ) -> Result<IndexedMesh, MeshError> {
     let path = path.as_ref();
     let io = |e| MeshError::new(Location::File, ErrorKind::Io(e)).with_path(path);
-    if let Some(f @ (Format::Ply | Format::Stl | Format::Obj)) = Format::from_extension(path) {
+    if let Some(f) = Format::from_extension(path) {
         if let Some(mesh) = read_stream(path, f, progress).map_err(io)? {
             return Ok(mesh);
         }
@@ -115,8 +115,8 @@ pub fn read_mesh_with(
     read_bytes(&bytes, format).map_err(|e| e.with_path(path))
 }
 
-/// An OBJ, binary PLY or binary STL file parsed as it is read (see
-/// [`obj::read_stream`], [`ply::read_stream`] and [`stl::read_stream`]);
+/// A file parsed as it is read (see [`obj::read_stream`],
+/// [`off::read_stream`], [`ply::read_stream`] and [`stl::read_stream`]);
 /// `None` when it needs the whole-file reader.
 fn read_stream(
     path: &Path,
@@ -135,7 +135,7 @@ fn read_stream(
         Format::Ply => ply::read_stream(&mut file, size, READ_CHUNK, progress),
         Format::Stl => stl::read_stream(&mut file, size, READ_CHUNK, progress),
         Format::Obj => obj::read_stream(&mut file, size, READ_CHUNK, progress),
-        Format::Off => Ok(None),
+        Format::Off => off::read_stream(&mut file, size, READ_CHUNK, progress),
     }
 }
 

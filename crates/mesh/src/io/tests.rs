@@ -441,13 +441,123 @@ fn odd_ply(m: &IndexedMesh, big: bool, comments: usize, extra: usize) -> Vec<u8>
     b
 }
 
+/// A random OFF file: header forms, comments and blank lines, vertex lines
+/// with extra values or a NaN, faces of 2–4 corners in and out of range,
+/// lines after the last face, CRLF or LF.
+fn off_text() -> impl Strategy<Value = String> {
+    let vertex = prop_oneof![
+        6 => (-3i32..3, -3i32..3, -3i32..3).prop_map(|(x, y, z)| format!("{x} {y}.5 {z}")),
+        1 => Just("1 2 3 0.5 0.5 0.5 1".to_string()),
+        1 => Just("1 nan 2".to_string()),
+        1 => Just("1 2".to_string()),
+    ];
+    let face = prop_oneof![
+        6 => proptest::collection::vec(0i64..6, 3..5).prop_map(|v| {
+            let c: Vec<String> = v.iter().map(i64::to_string).collect();
+            format!("{} {}", v.len(), c.join(" "))
+        }),
+        1 => Just("3 0 1 9".to_string()),
+        1 => Just("2 0 1".to_string()),
+        1 => Just("4 0 1 2".to_string()),
+        1 => Just("3 0 1 2 255 0 0".to_string()),
+    ];
+    let noise = prop_oneof![
+        Just(String::new()),
+        Just("# a comment 3 0 1 2".to_string()),
+        Just("   ".to_string()),
+    ];
+    (
+        prop_oneof![
+            Just("OFF"),
+            Just("COFF"),
+            Just("OFF 6 4 0"),
+            Just("NOFF 6 4"),
+            Just("OF")
+        ],
+        proptest::collection::vec(vertex, 4..8),
+        proptest::collection::vec(face, 2..6),
+        proptest::collection::vec(noise, 0..4),
+        any::<bool>(),
+        0usize..3,
+    )
+        .prop_map(|(head, vs, fs, noise, crlf, extra)| {
+            let mut lines = vec![head.to_string()];
+            if !head.contains(' ') && head != "OF" {
+                lines.push(format!("{} {} 0", 6, 4));
+            }
+            lines.extend(noise.iter().cloned());
+            lines.extend(vs);
+            lines.extend(noise);
+            lines.extend(fs);
+            lines.extend((0..extra).map(|_| "3 0 1 2".to_string()));
+            lines.join(if crlf { "\r\n" } else { "\n" })
+        })
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 2000, failure_persistence: None, ..ProptestConfig::default() })]
+
+    /// Streamed OFF reading, in chunks of any size, gives one pass's mesh
+    /// for every file one pass reads (progress rising to the file's size),
+    /// and nothing, for the whole-file reader to report, for every file it
+    /// rejects.
+    #[test]
+    fn streamed_off_reads_what_one_pass_reads(text in off_text(), chunk in 1usize..64) {
+        let one = read_bytes(text.as_bytes(), Format::Off).ok();
+        let size = text.len() as u64;
+        let mut calls = Vec::new();
+        let got = off::read_stream(&mut text.as_bytes(), size, chunk, &mut |d, t| calls.push((d, t)))
+            .unwrap();
+        prop_assert!(calls.windows(2).all(|w| w[0].0 <= w[1].0));
+        if got.is_some() {
+            prop_assert_eq!(calls.last(), Some(&(size, size)));
+        }
+        prop_assert_eq!(got, one);
+    }
+}
+
+/// A large OFF file streams in chunks into the mesh one pass makes, and
+/// `read_mesh` on good and bad OFF files gives what `read_bytes` gives.
+#[test]
+fn off_files_stream_and_read_as_their_bytes_do() {
+    let m = crate::synthetic::terrain(5000).into_indexed();
+    let mut good = Vec::new();
+    write_off(&mut good, &m).unwrap();
+    assert_eq!(read_bytes(&good, Format::Off).unwrap(), m);
+    for chunk in [1, 7, 1000, 1 << 20] {
+        let got = off::read_stream(&mut &good[..], good.len() as u64, chunk, &mut |_, _| {});
+        assert_eq!(got.unwrap().as_ref(), Some(&m), "chunk {chunk}");
+    }
+    let text = String::from_utf8(good).unwrap();
+    let cases = [
+        text.clone(),
+        text.replacen("3 0 ", "3 0 99999999 ", 1),
+        text.replacen("\n3 ", "\n2 ", 1),
+        text[..text.len() - 20].to_string(),
+        text.replacen("OFF", "OFX", 1),
+        text.replacen("OFF", "OFF BINARY", 1),
+    ];
+    let dir = std::env::temp_dir().join(format!("raymesh-off-stream-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("case.off");
+    for (k, t) in cases.iter().enumerate() {
+        std::fs::write(&path, t).unwrap();
+        let from_file = read_mesh(&path).map_err(|e| (e.kind.to_string(), e.location));
+        let from_bytes =
+            read_bytes(t.as_bytes(), Format::Off).map_err(|e| (e.kind.to_string(), e.location));
+        assert!(from_file == from_bytes, "case {k}: {:?}", from_file.err());
+        assert_eq!(from_file.is_ok(), k == 0, "case {k}: {:?}", from_file.err());
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// The streamed PLY reader on `bytes`, `chunk` bytes at a time.
 fn streamed(bytes: &[u8], chunk: usize) -> Option<IndexedMesh> {
     streamed_as(bytes, chunk, Format::Ply)
 }
 
-/// The streamed reader of `format` (PLY or STL) on `bytes`, `chunk`
-/// bytes at a time; checks that its progress rises to the file's size.
+/// The streamed reader of `format` on `bytes`, `chunk` bytes at a time;
+/// checks that its progress rises to the file's size.
 fn streamed_as(bytes: &[u8], chunk: usize, format: Format) -> Option<IndexedMesh> {
     let mut calls = Vec::new();
     let size = bytes.len() as u64;
@@ -455,7 +565,8 @@ fn streamed_as(bytes: &[u8], chunk: usize, format: Format) -> Option<IndexedMesh
     let got = match format {
         Format::Ply => ply::read_stream(&mut &bytes[..], size, chunk, &mut progress),
         Format::Stl => stl::read_stream(&mut &bytes[..], size, chunk, &mut progress),
-        _ => unreachable!("only PLY and STL stream"),
+        Format::Obj => obj::read_stream(&mut &bytes[..], size, chunk, &mut progress),
+        Format::Off => off::read_stream(&mut &bytes[..], size, chunk, &mut progress),
     }
     .expect("reading from memory cannot fail");
     if got.is_some() {
@@ -821,10 +932,8 @@ proptest! {
         }
         let whole = read_bytes(&bytes, format);
         // The streamed readers never disagree with the whole-file ones.
-        if matches!(format, Format::Ply | Format::Stl) {
-            if let Some(m) = streamed_as(&bytes, chunk, format) {
-                prop_assert_eq!(Some(&m), whole.as_ref().ok());
-            }
+        if let Some(m) = streamed_as(&bytes, chunk, format) {
+            prop_assert_eq!(Some(&m), whole.as_ref().ok());
         }
         if let Ok(mesh) = whole {
             let nv = mesh.num_vertices();
