@@ -4,7 +4,7 @@
 //! memory reads than in the binary tree (Wald, Benthin & Boulos, "Getting
 //! rid of packets", 2008; Dammertz et al., "Shallow bounding volume
 //! hierarchies", 2008). `Bvh4` tests its boxes in plain loops the compiler
-//! vectorizes; `Bvh8` uses the AVX kernel of [`super::simd`] where the CPU
+//! vectorizes; `Bvh8` uses the AVX kernel of [`crate::simd`] where the CPU
 //! has AVX2, and the same plain loops elsewhere.
 
 use super::{each_prim, Bvh};
@@ -134,7 +134,7 @@ pub struct WideBvh<const W: usize> {
 /// 4-wide BVH: four boxes per node, tested together.
 pub type Bvh4 = WideBvh<4>;
 /// 8-wide BVH: eight boxes per node, tested with one AVX instruction per
-/// step where the CPU has AVX2 (see [`super::simd`]).
+/// step where the CPU has AVX2 (see [`WideNode::slab`]).
 pub type Bvh8 = WideBvh<8>;
 
 impl<const W: usize> WideBvh<W> {
