@@ -3,7 +3,7 @@
 //! indices, and `\` line continuations. Every other statement (texture
 //! coordinates, normals, groups, materials, lines, points) is skipped.
 
-use super::text::{lines, parse_int, parse_vec3, show, tokens};
+use super::text::{lines, parse_int, parse_vec3, pieces, read_lines, show, tokens};
 use crate::{ErrorKind, IndexedMesh, MeshError};
 use raymesh_geometry::Vec3;
 use rayon::prelude::*;
@@ -29,34 +29,6 @@ struct Chunk {
     error: Option<MeshError>,
 }
 
-/// Splits `bytes` into pieces of about `chunk` bytes, each ending after a
-/// line end whose line does not continue (`\`) or at the end of
-/// `bytes`, with the number of lines before each (counting from `line`).
-fn pieces(bytes: &[u8], chunk: usize, mut line: u64) -> Vec<(&[u8], u64)> {
-    let mut pieces: Vec<(&[u8], u64)> = Vec::new();
-    let mut at = 0usize;
-    while at < bytes.len() {
-        let mut end = (at + chunk.max(1)).min(bytes.len());
-        while end < bytes.len() {
-            match bytes[end..].iter().position(|&b| b == b'\n') {
-                None => end = bytes.len(),
-                Some(k) => {
-                    let nl = end + k;
-                    end = nl + 1;
-                    if !continues(&bytes[..nl]) {
-                        break;
-                    }
-                }
-            }
-        }
-        let piece = &bytes[at..end];
-        pieces.push((piece, line));
-        line += piece.iter().filter(|&&b| b == b'\n').count() as u64;
-        at = end;
-    }
-    pieces
-}
-
 /// Whether a line (without its `\n`) continues on the next (`\` last).
 fn continues(line: &[u8]) -> bool {
     line.strip_suffix(b"\r").unwrap_or(line).ends_with(b"\\")
@@ -76,39 +48,18 @@ pub(super) fn read_stream(
     chunk: usize,
     progress: &mut dyn FnMut(u64, u64),
 ) -> std::io::Result<Option<IndexedMesh>> {
-    use std::io::Read;
     let chunk = chunk.max(1);
     let mut mesh = IndexedMesh::with_capacity(0, 0, 0);
     let (mut buf, mut face) = (Vec::new(), Vec::new());
     let (mut done, mut max_index) = (0u64, 0u32);
     loop {
-        let old = buf.len();
-        let eof = file.by_ref().take(chunk as u64).read_to_end(&mut buf)? < chunk;
-        // Parse up to the last line end whose line does not continue; the
-        // rest waits for the next read (all of it at the end of the file).
-        // Only the bytes just read can hold one: the rest had none.
-        let end = if eof {
-            buf.len()
-        } else {
-            let mut end = None;
-            let mut upto = buf.len();
-            while let Some(k) = buf[old..upto].iter().rposition(|&b| b == b'\n') {
-                let nl = old + k;
-                if !continues(&buf[..nl]) {
-                    end = Some(nl + 1);
-                    break;
-                }
-                upto = nl;
-            }
-            match end {
-                Some(e) => e,
-                None => continue,
-            }
+        let Some((end, eof)) = read_lines(file, &mut buf, chunk, continues)? else {
+            continue;
         };
         // Line numbers only matter to errors, which the whole-file reader reports.
-        let parsed: Vec<Chunk> = pieces(&buf[..end], (chunk / 8).max(1), 0)
+        let parsed: Vec<Chunk> = pieces(&buf[..end], (chunk / 8).max(1), continues)
             .par_iter()
-            .map(|&(piece, first_line)| parse_chunk(piece, first_line))
+            .map(|piece| parse_chunk(piece, 0))
             .collect();
         for c in parsed {
             if c.error.is_some() {
@@ -140,7 +91,7 @@ pub(super) fn read_stream(
     }
     let nv = mesh.positions.len();
     // Indices may name vertices further on; all must exist by the end.
-    if nv == 0 || (mesh.num_faces() > 0 && max_index as usize >= nv) {
+    if nv == 0 || max_index as usize >= nv {
         return Ok(None);
     }
     Ok(Some(mesh))
@@ -149,7 +100,17 @@ pub(super) fn read_stream(
 /// Reads `bytes` in chunks of about `chunk` bytes, in parallel; the result,
 /// errors included, is what one pass over the file gives.
 fn read_chunked(bytes: &[u8], chunk: usize) -> Result<IndexedMesh, MeshError> {
-    let chunks: Vec<Chunk> = pieces(bytes, chunk, 0)
+    // Each piece with the number of lines before it.
+    let mut line = 0u64;
+    let pieces: Vec<(&[u8], u64)> = pieces(bytes, chunk, continues)
+        .into_iter()
+        .map(|piece| {
+            let first = line;
+            line += piece.iter().filter(|&&b| b == b'\n').count() as u64;
+            (piece, first)
+        })
+        .collect();
+    let chunks: Vec<Chunk> = pieces
         .par_iter()
         .map(|&(piece, first_line)| parse_chunk(piece, first_line))
         .collect();

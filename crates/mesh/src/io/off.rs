@@ -4,7 +4,7 @@
 //! coordinates after the required values (COFF, NOFF, STOFF) are ignored;
 //! `#` starts a comment.
 
-use super::text::{check_count, lines, parse_int, parse_vec3, show, tokens};
+use super::text::{check_count, lines, parse_int, parse_vec3, pieces, read_lines, show, tokens};
 use crate::{ErrorKind, IndexedMesh, MeshError};
 use raymesh_geometry::Vec3;
 use rayon::prelude::*;
@@ -171,7 +171,6 @@ pub(super) fn read_stream(
     chunk: usize,
     progress: &mut dyn FnMut(u64, u64),
 ) -> std::io::Result<Option<IndexedMesh>> {
-    use std::io::Read;
     let chunk = chunk.max(1);
     let Ok(size_bytes) = usize::try_from(size) else {
         return Ok(None);
@@ -181,16 +180,9 @@ pub(super) fn read_stream(
     let mut mesh = IndexedMesh::with_capacity(0, 0, 0);
     let (mut done, mut record) = (0u64, 0usize);
     loop {
-        let old = buf.len();
-        let eof = file.by_ref().take(chunk as u64).read_to_end(&mut buf)? < chunk;
-        // Complete lines only; the rest waits for the next read.
-        let end = if eof {
-            buf.len()
-        } else {
-            match buf[old..].iter().rposition(|&b| b == b'\n') {
-                Some(k) => old + k + 1,
-                None => continue,
-            }
+        // Complete lines only (OFF lines do not continue).
+        let Some((end, eof)) = read_lines(file, &mut buf, chunk, |_| false)? else {
+            continue;
         };
         let mut from = 0;
         if counts.is_none() {
@@ -219,18 +211,7 @@ pub(super) fn read_stream(
         let (nv, nf) = counts.expect("the header is read");
         let block = &buf[from..end];
         // Pieces of whole lines, and the number of records before each.
-        let mut pieces = Vec::new();
-        let mut at = 0;
-        while at < block.len() {
-            let mut stop = (at + (chunk / 8).max(1)).min(block.len());
-            if let Some(k) = block[stop..].iter().position(|&b| b == b'\n') {
-                stop += k + 1;
-            } else {
-                stop = block.len();
-            }
-            pieces.push(&block[at..stop]);
-            at = stop;
-        }
+        let pieces = pieces(block, (chunk / 8).max(1), |_| false);
         let sizes: Vec<usize> = pieces.par_iter().map(|p| records(p).count()).collect();
         let mut firsts = Vec::with_capacity(sizes.len());
         for n in sizes {

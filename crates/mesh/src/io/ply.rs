@@ -488,6 +488,15 @@ enum Plan {
     Skip(usize),
 }
 
+impl Plan {
+    /// Bytes in one record.
+    fn stride(&self) -> usize {
+        match *self {
+            Self::Vertices(_, s) | Self::Faces(_, _, s) | Self::Skip(s) => s,
+        }
+    }
+}
+
 /// Reads a binary PLY file as it comes in, `chunk` bytes at a time, each
 /// chunk's records parsed in parallel, so that the file is never held
 /// whole in memory (what a memory map would save, without one): the
@@ -558,10 +567,7 @@ pub(super) fn read_stream(
             }
             Plan::Skip(stride)
         };
-        let stride = match plan {
-            Plan::Vertices(_, s) | Plan::Faces(_, _, s) | Plan::Skip(s) => s,
-        };
-        need += el.count as u128 * stride as u128;
+        need += el.count as u128 * plan.stride() as u128;
         plans.push(plan);
     }
     // A file too short for its counts goes to the reader that says where it ends.
@@ -573,9 +579,7 @@ pub(super) fn read_stream(
     buf.drain(..header_end);
     let mut done = header_end as u64;
     for (el, plan) in h.elements.iter().zip(&plans) {
-        let stride = match *plan {
-            Plan::Vertices(_, s) | Plan::Faces(_, _, s) | Plan::Skip(s) => s,
-        };
+        let stride = plan.stride();
         let per_chunk = (chunk / stride.max(1)).max(1);
         let mut positions = Vec::new();
         let mut indices = Vec::new();

@@ -537,18 +537,31 @@ fn off_files_stream_and_read_as_their_bytes_do() {
         text.replacen("OFF", "OFX", 1),
         text.replacen("OFF", "OFF BINARY", 1),
     ];
-    let dir = std::env::temp_dir().join(format!("raymesh-off-stream-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let path = dir.join("case.off");
     for (k, t) in cases.iter().enumerate() {
-        std::fs::write(&path, t).unwrap();
-        let from_file = read_mesh(&path).map_err(|e| (e.kind.to_string(), e.location));
-        let from_bytes =
-            read_bytes(t.as_bytes(), Format::Off).map_err(|e| (e.kind.to_string(), e.location));
-        assert!(from_file == from_bytes, "case {k}: {:?}", from_file.err());
-        assert_eq!(from_file.is_ok(), k == 0, "case {k}: {:?}", from_file.err());
+        let read = file_reads_as_bytes("case.off", Format::Off, t.as_bytes(), &format!("case {k}"));
+        assert_eq!(read, k == 0, "case {k}");
     }
+}
+
+/// Writes `bytes` to a file named `name` (its extension picks the format)
+/// and checks that `read_mesh` on it gives what `read_bytes` gives in
+/// `format`: the same mesh, or the same error at the same place. Returns
+/// whether it read. `what` names the case in a failure.
+fn file_reads_as_bytes(name: &str, format: Format, bytes: &[u8], what: &str) -> bool {
+    let dir = std::env::temp_dir().join(format!("raymesh-file-{}-{name}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join(name);
+    std::fs::write(&path, bytes).unwrap();
+    let from_file = read_mesh(&path).map_err(|e| (e.kind.to_string(), e.location));
     std::fs::remove_dir_all(&dir).unwrap();
+    let from_bytes = read_bytes(bytes, format).map_err(|e| (e.kind.to_string(), e.location));
+    assert!(
+        from_file == from_bytes,
+        "{what}: {:?} vs {:?}",
+        from_file.as_ref().err(),
+        from_bytes.err()
+    );
+    from_file.is_ok()
 }
 
 /// The streamed PLY reader on `bytes`, `chunk` bytes at a time.
@@ -634,18 +647,15 @@ fn obj_files_read_as_their_bytes_do() {
         "f 1 2 3\n".to_string(),
         "# nothing\n".to_string(),
     ];
-    let dir = std::env::temp_dir().join(format!("raymesh-obj-stream-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let path = dir.join("case.obj");
     for (k, text) in cases.iter().enumerate() {
-        std::fs::write(&path, text).unwrap();
-        let from_file = read_mesh(&path).map_err(|e| (e.kind.to_string(), e.location));
-        let from_bytes =
-            read_bytes(text.as_bytes(), Format::Obj).map_err(|e| (e.kind.to_string(), e.location));
-        assert!(from_file == from_bytes, "case {k}: {:?}", from_file.err());
-        assert_eq!(from_file.is_ok(), k == 0, "case {k}: {:?}", from_file.err());
+        let read = file_reads_as_bytes(
+            "case.obj",
+            Format::Obj,
+            text.as_bytes(),
+            &format!("case {k}"),
+        );
+        assert_eq!(read, k == 0, "case {k}");
     }
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// A pipe is read once, by the whole-file reader: a streamed reading
@@ -740,8 +750,6 @@ fn streamed_stl_welds_what_the_whole_file_reader_welds() {
         ("short", b[..50].to_vec()),
         ("empty", Vec::new()),
     ];
-    let dir = std::env::temp_dir().join(format!("raymesh-stl-stream-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
     for (what, bytes) in &cases {
         for chunk in [7, 1 << 20] {
             assert_eq!(
@@ -750,14 +758,8 @@ fn streamed_stl_welds_what_the_whole_file_reader_welds() {
                 "{what}, chunk {chunk}"
             );
         }
-        let path = dir.join("case.stl");
-        std::fs::write(&path, bytes).unwrap();
-        let from_file = read_mesh(&path).map_err(|e| (e.kind.to_string(), e.location));
-        let from_bytes =
-            read_bytes(bytes, Format::Stl).map_err(|e| (e.kind.to_string(), e.location));
-        assert_eq!(from_file, from_bytes, "{what}");
+        file_reads_as_bytes("case.stl", Format::Stl, bytes, what);
     }
-    std::fs::remove_dir_all(&dir).unwrap();
     // A file that shrinks while it is read (its size said more) ends the stream too.
     let short = &b[..b.len() - 50];
     let got = stl::read_stream(&mut &short[..], b.len() as u64, 100, &mut |_, _| {}).unwrap();
@@ -809,20 +811,12 @@ end_header",
                 .into_bytes(),
         ),
     ];
-    let dir = std::env::temp_dir().join(format!("raymesh-stream-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
     for (what, bytes) in &cases {
         for chunk in [7, 1 << 20] {
             assert_eq!(streamed(bytes, chunk), None, "{what}, chunk {chunk}");
         }
-        let path = dir.join("case.ply");
-        std::fs::write(&path, bytes).unwrap();
-        let from_file = read_mesh(&path).map_err(|e| (e.kind.to_string(), e.location));
-        let from_bytes =
-            read_bytes(bytes, Format::Ply).map_err(|e| (e.kind.to_string(), e.location));
-        assert_eq!(from_file, from_bytes, "{what}");
+        file_reads_as_bytes("case.ply", Format::Ply, bytes, what);
     }
-    std::fs::remove_dir_all(&dir).unwrap();
     // A file that shrinks while it is read (its size said more) ends the stream too.
     let short = &b[..b.len() - 5];
     let size = b.len() as u64;

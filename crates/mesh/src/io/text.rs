@@ -3,6 +3,62 @@
 use crate::{ErrorKind, MeshError};
 use raymesh_geometry::Vec3;
 
+/// Splits `bytes` into pieces of about `chunk` bytes, each ending after a
+/// line end whose line does not continue (`continues(line)`, the line
+/// without its `\n`, is false) or at the end of `bytes`: the units a
+/// text reader parses in parallel.
+pub(crate) fn pieces(bytes: &[u8], chunk: usize, continues: impl Fn(&[u8]) -> bool) -> Vec<&[u8]> {
+    let mut pieces = Vec::new();
+    let mut at = 0usize;
+    while at < bytes.len() {
+        let mut end = (at + chunk.max(1)).min(bytes.len());
+        while end < bytes.len() {
+            match bytes[end..].iter().position(|&b| b == b'\n') {
+                None => end = bytes.len(),
+                Some(k) => {
+                    let nl = end + k;
+                    end = nl + 1;
+                    if !continues(&bytes[..nl]) {
+                        break;
+                    }
+                }
+            }
+        }
+        pieces.push(&bytes[at..end]);
+        at = end;
+    }
+    pieces
+}
+
+/// Reads up to `chunk` more bytes of `file` onto `buf` and says how much
+/// of `buf` a streamed text reader can parse now: `(end, eof)`, with `end`
+/// after the last line end whose line does not continue (the rest waits
+/// for the next read), or all of `buf` at the end of the file; `None`
+/// when no such line end has come in yet.
+pub(crate) fn read_lines(
+    file: &mut impl std::io::Read,
+    buf: &mut Vec<u8>,
+    chunk: usize,
+    continues: impl Fn(&[u8]) -> bool,
+) -> std::io::Result<Option<(usize, bool)>> {
+    use std::io::Read;
+    let old = buf.len();
+    let eof = file.by_ref().take(chunk as u64).read_to_end(buf)? < chunk;
+    if eof {
+        return Ok(Some((buf.len(), true)));
+    }
+    // Only the bytes just read can hold one: the earlier ones had none.
+    let mut upto = buf.len();
+    while let Some(k) = buf[old..upto].iter().rposition(|&b| b == b'\n') {
+        let nl = old + k;
+        if !continues(&buf[..nl]) {
+            return Ok(Some((nl + 1, false)));
+        }
+        upto = nl;
+    }
+    Ok(None)
+}
+
 /// Lines of a text file with their 1-based numbers, `\r\n` tolerated.
 pub(crate) fn lines(bytes: &[u8]) -> impl Iterator<Item = (u64, &[u8])> {
     bytes.split(|&b| b == b'\n').enumerate().map(|(i, l)| {
