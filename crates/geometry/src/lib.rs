@@ -9,6 +9,7 @@
 
 mod aabb;
 mod float;
+mod octahedral;
 mod ray;
 mod sphere;
 mod triangle;
@@ -16,6 +17,7 @@ mod triangle;
 pub use aabb::{cull_bound, Aabb};
 pub use float::{gamma, max_nan_second, min_nan_second, next_down, next_up, ROBUST_EXIT};
 pub use glam::{Mat3, Mat4, Quat, Vec2, Vec3, Vec3A};
+pub use octahedral::{decode_unit, encode_unit, ZERO_UNIT};
 pub use ray::Ray;
 pub use sphere::{intersect_sphere, Sphere, SphereHit};
 pub use triangle::{intersect_triangle, triangle_area2, TriHit, Triangle};

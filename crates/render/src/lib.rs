@@ -16,4 +16,4 @@ pub use demo::{demo_scene, torus_knot};
 pub use desc::{SceneDesc, SceneError};
 pub use image_out::{heat_color, save_png, to_srgb8};
 pub use render::{render, Mode, Options, Rendered};
-pub use world::{Light, Material, World};
+pub use world::{Light, Material, World, WorldBytes};

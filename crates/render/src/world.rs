@@ -10,9 +10,10 @@ use raymesh_accel::{
     AccelKind, CountStats, Hit, Instance, Instances, Ray, Scene, Shape, Shapes, Surface,
     TriangleMesh, Triangles,
 };
-use raymesh_geometry::{Aabb, Mat4, Quat, Sphere, Vec3};
+use raymesh_geometry::{decode_unit, encode_unit, Aabb, Mat4, Quat, Sphere, Vec3};
 use raymesh_mesh::{normals::vertex_normals, IndexedMesh};
-use std::collections::HashMap;
+use rayon::prelude::*;
+use std::collections::{HashMap, HashSet};
 use std::path::Path;
 use std::time::Instant;
 
@@ -52,6 +53,19 @@ pub enum Light {
     Directional(Vec3, Vec3),
 }
 
+/// Bytes a [`World`] keeps, as [`World::bytes`] counts them.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct WorldBytes {
+    /// Both levels of structure, with the copies of the primitives they
+    /// test (a mesh's triangle corners, the loose shapes).
+    pub structure: usize,
+    /// What shading adds: meshes' encoded corner normals (12 bytes a
+    /// triangle, for meshes shaded smooth) and the loose shapes' materials.
+    pub shading: usize,
+    /// Triangles of the meshes, each mesh once however often it is placed.
+    pub triangles: usize,
+}
+
 /// One bottom-level object: a mesh, or the loose spheres and triangles.
 enum Object {
     Mesh(Scene<Triangles>),
@@ -87,8 +101,21 @@ impl Surface for Object {
 
 /// What shading needs to know about a mesh object.
 struct MeshData {
-    triangles: Vec<[u32; 3]>,
-    normals: Vec<Vec3>,
+    /// Triangles in the mesh.
+    triangles: usize,
+    /// Per triangle (in the mesh's order), its corners' vertex normals,
+    /// octahedral-encoded ([`encode_unit`]): 12 bytes a triangle, where
+    /// the corner indices and a normal per vertex took 18. Empty when no
+    /// surface shades the mesh smooth.
+    corner_normals: Vec<[u32; 3]>,
+}
+
+/// Each triangle's corner normals, encoded, from per-vertex normals.
+fn corner_normals(triangles: &[[u32; 3]], normals: &[Vec3]) -> Vec<[u32; 3]> {
+    triangles
+        .par_iter()
+        .map(|t| t.map(|v| encode_unit(normals[v as usize])))
+        .collect()
 }
 
 /// Per instance: its material and shading.
@@ -258,6 +285,15 @@ impl World {
         let mut shapes = Vec::new();
         let mut shape_materials = Vec::new();
         let mut triangles = 0usize;
+        // Mesh files some surface shades smooth: only they need normals.
+        let smooth_files: HashSet<&str> = desc
+            .surfaces
+            .iter()
+            .filter_map(|s| match s {
+                SurfaceDesc::Mesh(m) if m.shading == Shading::Smooth => Some(m.file.as_str()),
+                _ => None,
+            })
+            .collect();
         for (i, s) in desc.surfaces.iter().enumerate() {
             let at = |field: &str| format!("surfaces[{i}].{field}");
             match s {
@@ -294,14 +330,21 @@ impl World {
                     let object = match loaded.get(mesh_file.as_str()) {
                         Some(&o) => o,
                         None => {
-                            let mesh = load_mesh(mesh_file).map_err(|e| err(at("file"), e))?;
+                            let mut mesh = load_mesh(mesh_file).map_err(|e| err(at("file"), e))?;
+                            let normals = smooth_files
+                                .contains(mesh_file.as_str())
+                                .then(|| vertex_normals(&mesh));
+                            // The polygons go before the build: only the
+                            // triangles and positions are needed from here.
                             let tris = mesh.triangles();
-                            let normals = vertex_normals(&mesh);
-                            let tm = TriangleMesh::new(mesh.positions, tris.clone());
+                            let positions = std::mem::take(&mut mesh.positions);
+                            drop(mesh);
+                            let tm = TriangleMesh::new(positions, tris);
                             objects.push(Object::Mesh(Scene::from_mesh(&tm, accel)));
                             meshes.push(MeshData {
-                                triangles: tris,
-                                normals,
+                                triangles: tm.triangles.len(),
+                                corner_normals: normals
+                                    .map_or_else(Vec::new, |n| corner_normals(&tm.triangles, &n)),
                             });
                             let o = (objects.len() - 1) as u32;
                             loaded.insert(mesh_file, o);
@@ -321,7 +364,7 @@ impl World {
                             material: mat,
                             smooth: *shading == Shading::Smooth,
                         });
-                        triangles += meshes[object as usize].triangles.len();
+                        triangles += meshes[object as usize].triangles;
                     }
                 }
             }
@@ -367,6 +410,27 @@ impl World {
         })
     }
 
+    /// What the world keeps in memory to trace and shade, for reports.
+    #[must_use]
+    pub fn bytes(&self) -> WorldBytes {
+        let mut b = WorldBytes {
+            structure: self.scene.top_stats().bytes,
+            shading: self.shape_materials.len() * 4,
+            triangles: 0,
+        };
+        for o in self.scene.objects() {
+            b.structure += match o {
+                Object::Mesh(s) => s.stats().bytes + s.prims().bytes(),
+                Object::Shapes(s) => s.stats().bytes + std::mem::size_of_val(&s.prims().0[..]),
+            };
+        }
+        for m in &self.meshes {
+            b.shading += std::mem::size_of_val(&m.corner_normals[..]);
+            b.triangles += m.triangles;
+        }
+        b
+    }
+
     /// The whole scene as one surface.
     #[must_use]
     pub fn surface(&self) -> &dyn Surface {
@@ -379,11 +443,9 @@ impl World {
         match &self.scene.objects()[self.scene.object_of(hit.instance) as usize] {
             Object::Mesh(_) => {
                 let m = &self.meshes[self.scene.object_of(hit.instance) as usize];
-                let n = if info.smooth {
-                    let [a, b, c] = m.triangles[hit.prim as usize];
-                    let n = (1.0 - hit.u - hit.v) * m.normals[a as usize]
-                        + hit.u * m.normals[b as usize]
-                        + hit.v * m.normals[c as usize];
+                let n = if info.smooth && !m.corner_normals.is_empty() {
+                    let [a, b, c] = m.corner_normals[hit.prim as usize].map(decode_unit);
+                    let n = (1.0 - hit.u - hit.v) * a + hit.u * b + hit.v * c;
                     let n = self.scene.normal_to_world(hit.instance, n);
                     if n == Vec3::ZERO {
                         hit.normal

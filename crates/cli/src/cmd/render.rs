@@ -224,6 +224,22 @@ pub fn run(args: &Args) -> Result<()> {
         img.rays,
         img.rays as f64 / img.seconds.max(1e-9) / 1e6
     );
+    let mem = world.bytes();
+    let mib = |b: usize| b as f64 / (1 << 20) as f64;
+    let per_tri = |b: usize| {
+        if mem.triangles > 0 {
+            format!(" ({:.1} bytes/triangle)", b as f64 / mem.triangles as f64)
+        } else {
+            String::new()
+        }
+    };
+    println!(
+        "memory: structure {:.1} MiB{} + shading {:.1} MiB{}",
+        mib(mem.structure),
+        per_tri(mem.structure),
+        mib(mem.shading),
+        per_tri(mem.shading),
+    );
     println!(
         "wrote {} ({}×{}, {} spp)",
         out.display(),
