@@ -110,12 +110,14 @@ struct MeshData {
     corner_normals: Vec<[u32; 3]>,
 }
 
-/// Each triangle's corner normals, encoded, from per-vertex normals.
-fn corner_normals(triangles: &[[u32; 3]], normals: &[Vec3]) -> Vec<[u32; 3]> {
+/// Each triangle's corner normals, encoded, from per-vertex normals:
+/// written over the triangles' corner indices, so that no second array of
+/// the same size is made.
+fn corner_normals(mut triangles: Vec<[u32; 3]>, normals: &[Vec3]) -> Vec<[u32; 3]> {
     triangles
-        .par_iter()
-        .map(|t| t.map(|v| encode_unit(normals[v as usize])))
-        .collect()
+        .par_iter_mut()
+        .for_each(|t| *t = t.map(|v| encode_unit(normals[v as usize])));
+    triangles
 }
 
 /// Per instance: its material and shading.
@@ -341,10 +343,15 @@ impl World {
                             drop(mesh);
                             let tm = TriangleMesh::new(positions, tris);
                             objects.push(Object::Mesh(Scene::from_mesh(&tm, accel)));
+                            let TriangleMesh {
+                                positions,
+                                triangles: tris,
+                            } = tm;
+                            drop(positions);
                             meshes.push(MeshData {
-                                triangles: tm.triangles.len(),
+                                triangles: tris.len(),
                                 corner_normals: normals
-                                    .map_or_else(Vec::new, |n| corner_normals(&tm.triangles, &n)),
+                                    .map_or_else(Vec::new, |n| corner_normals(tris, &n)),
                             });
                             let o = (objects.len() - 1) as u32;
                             loaded.insert(mesh_file, o);

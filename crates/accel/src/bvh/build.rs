@@ -191,13 +191,14 @@ impl BvhBuilder {
         };
         let (bounds, cbounds) = ctx.bounds_pair(&refs);
         let tree = ctx.subtree(&mut refs, 0, 1, bounds, cbounds);
+        // The references (32 bytes a primitive) go before the tree is
+        // flattened, so that they never coexist with both of its copies.
+        let prim_ids = refs.par_iter().map(|r| r.id).collect();
+        drop(refs);
         let mut pairs = Vec::with_capacity(tree.pairs());
         pairs.push(NodePair([Node::new(Aabb::EMPTY); 2]));
         pairs[0].0[0] = place(tree, &mut pairs);
-        Bvh {
-            pairs,
-            prim_ids: refs.par_iter().map(|r| r.id).collect(),
-        }
+        Bvh { pairs, prim_ids }
     }
 }
 
