@@ -239,3 +239,36 @@ fn smooth_shading_follows_the_surface_it_approximates() {
     assert!(flat > 0.02, "flat shading error {flat}");
     assert!(smooth < 0.005, "smooth shading error {smooth}");
 }
+
+#[test]
+fn only_smooth_meshes_keep_shading_normals() {
+    let scene = |shadings: &[&str]| {
+        let surfaces: Vec<String> = shadings
+            .iter()
+            .map(|s| format!(r#"{{"type": "mesh", "file": "cube_quad.off", "shading": "{s}"}}"#))
+            .collect();
+        world(&format!(
+            r#"{{"camera": {{"eye": [0, 0, 5], "target": [0, 0, 0]}},
+                "lights": [{{"type": "ambient"}}],
+                "surfaces": [{}]}}"#,
+            surfaces.join(",")
+        ))
+        .bytes()
+    };
+    // cube_quad.off: 6 quads, 12 triangles once fan-triangulated.
+    let flat = scene(&["flat"]);
+    assert_eq!((flat.triangles, flat.shading), (12, 0));
+    assert!(flat.structure > 0);
+    let smooth = scene(&["smooth"]);
+    assert_eq!((smooth.triangles, smooth.shading), (12, 12 * 12));
+    // One file placed twice, flat and smooth: one mesh and one bottom
+    // structure, normals kept once; the second placement adds only to the
+    // top level (a few bytes).
+    let both = scene(&["flat", "smooth"]);
+    assert_eq!((both.triangles, both.shading), (12, 12 * 12));
+    assert!(both.structure >= smooth.structure);
+    assert!(
+        both.structure - smooth.structure < 64,
+        "{both:?} {smooth:?}"
+    );
+}
