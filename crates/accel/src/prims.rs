@@ -212,8 +212,10 @@ impl Triangles {
     /// coordinates to the nine rows' matching runs: every triangle's
     /// corners are fetched once (from an indexed mesh: three indices and
     /// three positions, wherever they lie), where filling row by row
-    /// fetched them nine times. On 1M triangles in leaf order this made
-    /// the gather 2–3 times faster.
+    /// fetched them nine times. In leaf order this made the gather 2.5–3
+    /// times faster (timed inside `Scene::from_mesh_with` under
+    /// `raymesh scale --sizes 1,10 --accel bvh8 --threads 1,2`: 1M
+    /// triangles on one thread 97–174 → 34–57 ms; see commit b394636).
     fn gather(len: usize, corners: impl Fn(usize) -> [Vec3; 3] + Sync) -> Self {
         /// Triangles a task fills.
         const RUN: usize = 4096;
