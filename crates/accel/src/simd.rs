@@ -216,16 +216,16 @@ unsafe fn triangles8_avx(
 ) -> (u32, u32) {
     use std::arch::x86_64::*;
     let (s, [kx, ky, kz]) = ray.shear();
-    let o = ray.origin();
+    let o = ray.permute(ray.origin());
     let (sx, sy, sz) = (
         _mm256_set1_ps(s.x),
         _mm256_set1_ps(s.y),
         _mm256_set1_ps(s.z),
     );
     let (ox, oy, oz) = (
-        _mm256_set1_ps(o[kx]),
-        _mm256_set1_ps(o[ky]),
-        _mm256_set1_ps(o[kz]),
+        _mm256_set1_ps(o.x),
+        _mm256_set1_ps(o.y),
+        _mm256_set1_ps(o.z),
     );
     // Corner `c` relative to the ray origin and sheared to 2D, in the
     // scalar test's order of operations (a macro, not a closure, so that

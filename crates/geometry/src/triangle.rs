@@ -74,17 +74,17 @@ pub fn triangle_area2(a: Vec3, b: Vec3, c: Vec3) -> f64 {
 #[inline]
 #[must_use]
 pub fn intersect_triangle(ray: &Ray, tmax: f32, p0: Vec3, p1: Vec3, p2: Vec3) -> Option<TriHit> {
-    let (s, [kx, ky, kz]) = ray.shear();
+    let (s, _) = ray.shear();
     let o = ray.origin();
-    let a = p0 - o;
-    let b = p1 - o;
-    let c = p2 - o;
-    let ax = a[kx] - s.x * a[kz];
-    let ay = a[ky] - s.y * a[kz];
-    let bx = b[kx] - s.x * b[kz];
-    let by = b[ky] - s.y * b[kz];
-    let cx = c[kx] - s.x * c[kz];
-    let cy = c[ky] - s.y * c[kz];
+    let a = ray.permute(p0 - o);
+    let b = ray.permute(p1 - o);
+    let c = ray.permute(p2 - o);
+    let ax = a.x - s.x * a.z;
+    let ay = a.y - s.y * a.z;
+    let bx = b.x - s.x * b.z;
+    let by = b.y - s.y * b.z;
+    let cx = c.x - s.x * c.z;
+    let cy = c.y - s.y * c.z;
 
     let mut u = cx * by - cy * bx;
     let mut v = ax * cy - ay * cx;
@@ -104,9 +104,9 @@ pub fn intersect_triangle(ray: &Ray, tmax: f32, p0: Vec3, p1: Vec3, p2: Vec3) ->
     if det == 0.0 || det.is_nan() {
         return None;
     }
-    let az = s.z * a[kz];
-    let bz = s.z * b[kz];
-    let cz = s.z * c[kz];
+    let az = s.z * a.z;
+    let bz = s.z * b.z;
+    let cz = s.z * c.z;
     let t_scaled = u * az + v * bz + w * cz;
     let inv_det = 1.0 / det;
     let t = t_scaled * inv_det;
