@@ -302,38 +302,19 @@ unsafe fn triangles8_avx(
 mod tests {
     use super::*;
     use crate::bvh::slab_scalar;
+    use crate::test_util::{hard_coord, hard_vec3};
     use proptest::prelude::*;
     use raymesh_geometry::{Aabb, Ray, Vec3};
-
-    /// Coordinates that include the hard cases: zeros of both signs,
-    /// infinities, NaN, huge and tiny values.
-    fn coord() -> impl Strategy<Value = f32> {
-        prop_oneof![
-            6 => -8.0f32..8.0,
-            1 => Just(0.0f32),
-            1 => Just(-0.0f32),
-            1 => Just(f32::INFINITY),
-            1 => Just(f32::NEG_INFINITY),
-            1 => Just(f32::NAN),
-            1 => Just(1e30f32),
-            1 => Just(-1e-30f32),
-            1 => (-2i32..3).prop_map(|i| i as f32),
-        ]
-    }
-
-    fn vec3() -> impl Strategy<Value = Vec3> {
-        (coord(), coord(), coord()).prop_map(|(x, y, z)| Vec3::new(x, y, z))
-    }
 
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(4000))]
         /// The AVX kernel and the plain loops give the same bits.
         #[test]
         fn avx_slab_matches_fallback(
-            corners in proptest::collection::vec((vec3(), vec3()), 8),
+            corners in proptest::collection::vec((hard_vec3(), hard_vec3()), 8),
             used in 0u32..256,
-            o in vec3(), d in vec3(),
-            tmin in coord(), bound in coord(),
+            o in hard_vec3(), d in hard_vec3(),
+            tmin in hard_coord(), bound in hard_coord(),
         ) {
             prop_assume!(cpu_has_avx2());
             let mut node = WideNode::<8>::empty();
@@ -369,10 +350,10 @@ mod tests {
         #[test]
         fn avx_triangles_match_scalar(
             tris in proptest::collection::vec(
-                prop_oneof![(vec3(), vec3(), vec3()), (lattice(), lattice(), lattice())], 16),
+                prop_oneof![(hard_vec3(), hard_vec3(), hard_vec3()), (lattice(), lattice(), lattice())], 16),
             first in 0usize..9, count in 0usize..9, extra in 0usize..9,
-            o in prop_oneof![vec3(), lattice()], d in prop_oneof![vec3(), lattice()],
-            tmin in prop_oneof![Just(0.0f32), coord()], tmax in coord(),
+            o in prop_oneof![hard_vec3(), lattice()], d in prop_oneof![hard_vec3(), lattice()],
+            tmin in prop_oneof![Just(0.0f32), hard_coord()], tmax in hard_coord(),
         ) {
             prop_assume!(cpu_has_avx2());
             // A block anywhere in the rows, up to their very end (where

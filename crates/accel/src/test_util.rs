@@ -1,5 +1,6 @@
 //! Inputs shared by the unit tests.
 
+use proptest::prelude::*;
 use raymesh_geometry::{Aabb, Vec3};
 
 /// `n` small boxes in seven overlapping clusters (a fixed xorshift
@@ -28,4 +29,25 @@ pub(crate) fn pool(threads: usize) -> rayon::ThreadPool {
         .num_threads(threads)
         .build()
         .expect("a thread pool")
+}
+
+/// Coordinates that include the hard cases: zeros of both signs,
+/// infinities, NaN, huge and tiny values.
+pub(crate) fn hard_coord() -> impl Strategy<Value = f32> {
+    prop_oneof![
+        6 => -8.0f32..8.0,
+        1 => Just(0.0f32),
+        1 => Just(-0.0f32),
+        1 => Just(f32::INFINITY),
+        1 => Just(f32::NEG_INFINITY),
+        1 => Just(f32::NAN),
+        1 => Just(1e30f32),
+        1 => Just(-1e-30f32),
+        1 => (-2i32..3).prop_map(|i| i as f32),
+    ]
+}
+
+/// Vectors of [`hard_coord`]s.
+pub(crate) fn hard_vec3() -> impl Strategy<Value = Vec3> {
+    (hard_coord(), hard_coord(), hard_coord()).prop_map(|(x, y, z)| Vec3::new(x, y, z))
 }
