@@ -141,8 +141,8 @@ impl BvhBuilder {
     /// Builds a BVH over primitive boxes; primitive `i` has box `boxes[i]`.
     ///
     /// Large nodes build their subtrees in parallel on the current rayon
-    /// pool, and bin and partition their primitives in parallel chunks; the tree is the
-    /// same, node for node, whatever the number of threads.
+    /// pool, and bin and partition their primitives in parallel chunks;
+    /// the tree is the same, node for node, whatever the number of threads.
     #[must_use]
     pub fn build(self, boxes: &[Aabb], config: &BuildConfig) -> Bvh {
         self.build_split_at(boxes.len(), &|i| boxes[i as usize], config, PAR_SUBTREE)
