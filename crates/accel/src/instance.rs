@@ -3,9 +3,14 @@
 //! once and drawn many times.
 
 use crate::{
-    Accel, AccelKind, AccelStats, BuildConfig, CountStats, Hit, NoStats, RayCounter, Surface,
+    Accel, AccelKind, AccelStats, BuildConfig, CountStats, Hit, NoStats, RayCounter, Surface, LANES,
 };
 use raymesh_geometry::{Aabb, Mat3, Mat4, Ray, Vec3};
+
+/// Most instances a scene may have for [`Surface::intersect8`] to trace
+/// packets through it (its lanes list the instances their rays enter,
+/// with no culling by the best hit; more instances trace ray by ray).
+pub const PACKET_INSTANCES: usize = 64;
 
 /// One placement of an object.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -151,6 +156,52 @@ impl<S: Surface> Surface for Instances<S> {
     }
     fn intersect_count(&self, ray: &Ray, stats: &mut CountStats) -> Option<Hit> {
         self.intersect_counted(ray, stats)
+    }
+    /// Packets through a few instances: each lane lists the instances
+    /// whose boxes its ray enters, and each instance so listed traces the
+    /// lanes that listed it as one packet of its object (lanes that did not
+    /// repeat one that did, their answers unused), each lane bounded by
+    /// its best hit so far. The best hit is the least `(t, instance,
+    /// prim)`, whatever the order, so the hits are those of
+    /// [`Surface::intersect`] ray by ray. Scenes of more than
+    /// [`PACKET_INSTANCES`] instances trace ray by ray.
+    fn intersect8(&self, rays: &[Ray; LANES]) -> [Option<Hit>; LANES] {
+        if self.placed.len() > PACKET_INSTANCES {
+            return rays.each_ref().map(|r| self.intersect(r));
+        }
+        let mut lanes = [0u8; PACKET_INSTANCES];
+        for (i, r) in rays.iter().enumerate() {
+            self.top.traverse(r, &mut NoStats, &mut |k| {
+                lanes[k as usize] |= 1 << i;
+                r.tmax()
+            });
+        }
+        let mut best: [Option<Hit>; LANES] = [None; LANES];
+        for (k, &m) in lanes.iter().enumerate().filter(|(_, &m)| m != 0) {
+            let p = &self.placed[k];
+            let first = m.trailing_zeros() as usize;
+            let local: [Ray; LANES] = std::array::from_fn(|i| {
+                let i = if m >> i & 1 != 0 { i } else { first };
+                self.local_ray(p, &rays[i], best[i].map_or(rays[i].tmax(), |h| h.t))
+            });
+            let hits = self.objects[p.object as usize].intersect8(&local);
+            for (i, h) in hits.into_iter().enumerate() {
+                let Some(mut h) = h.filter(|_| m >> i & 1 != 0) else {
+                    continue;
+                };
+                let k = k as u32;
+                let better = match best[i] {
+                    None => true,
+                    Some(b) => h.t < b.t || (h.t == b.t && (k, h.prim) < (b.instance, b.prim)),
+                };
+                if better {
+                    h.instance = k;
+                    h.normal = (p.normal_matrix * h.normal).normalize_or_zero();
+                    best[i] = Some(h);
+                }
+            }
+        }
+        best
     }
     fn occluded(&self, ray: &Ray) -> bool {
         let mut hit = false;

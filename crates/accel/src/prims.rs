@@ -1,5 +1,6 @@
 //! What structures index: primitives with bounds and a ray test.
 
+use crate::packet::{self, Packet8, LANES};
 use raymesh_geometry::{intersect_sphere, intersect_triangle, Aabb, Ray, Sphere, Vec3};
 use rayon::prelude::*;
 
@@ -47,6 +48,29 @@ pub trait Primitives: Send + Sync {
     /// kernel) rather than one by one: then a binary BVH's SAH counts its
     /// leaves in blocks (see [`crate::BuildConfig::leaf_block`]).
     const BLOCK_TEST: bool = false;
+    /// Tests primitive `i` against the lanes `lanes` of a packet, lane `k`
+    /// over `[tmin, tmax[k]]`, as [`Self::intersect`] tests each lane's
+    /// ray: writes the hit of lane `k` to `out[k]` and returns the mask of
+    /// lanes hit. Packet traversals ([`crate::Scene::intersect8`]) call it;
+    /// triangles test the eight lanes at once, the default loops over them.
+    #[inline]
+    fn intersect_packet(
+        &self,
+        i: u32,
+        packet: &Packet8,
+        lanes: u32,
+        tmax: &[f32; LANES],
+        out: &mut [PrimHit; LANES],
+    ) -> u32 {
+        let mut hit = 0;
+        for k in (0..LANES).filter(|&k| lanes >> k & 1 != 0) {
+            if let Some(h) = self.intersect(i, packet.ray(k), tmax[k]) {
+                out[k] = h;
+                hit |= 1 << k;
+            }
+        }
+        hit
+    }
     /// Unit geometric normal of primitive `i` at a hit (not flipped toward the ray).
     fn normal(&self, i: u32, ray: &Ray, hit: &PrimHit) -> Vec3;
     /// Puts the primitives in another order, in place: new primitive `k`
@@ -149,6 +173,17 @@ impl Primitives for TriangleMesh {
             u: h.u,
             v: h.v,
         })
+    }
+    #[inline(always)]
+    fn intersect_packet(
+        &self,
+        i: u32,
+        packet: &Packet8,
+        lanes: u32,
+        tmax: &[f32; LANES],
+        out: &mut [PrimHit; LANES],
+    ) -> u32 {
+        packet::triangle(packet, self.corners(i), lanes, tmax, out)
     }
     fn normal(&self, i: u32, _ray: &Ray, _hit: &PrimHit) -> Vec3 {
         let [a, b, c] = self.corners(i);
@@ -314,6 +349,17 @@ impl Primitives for Triangles {
             return mask | intersect_each(self, first as u32, lanes, ray, tmax, out);
         }
         intersect_each(self, first as u32, 0..count as u32, ray, tmax, out)
+    }
+    #[inline(always)]
+    fn intersect_packet(
+        &self,
+        i: u32,
+        packet: &Packet8,
+        lanes: u32,
+        tmax: &[f32; LANES],
+        out: &mut [PrimHit; LANES],
+    ) -> u32 {
+        packet::triangle(packet, self.corners(i), lanes, tmax, out)
     }
     fn normal(&self, i: u32, _ray: &Ray, _hit: &PrimHit) -> Vec3 {
         let [a, b, c] = self.corners(i);

@@ -1,8 +1,10 @@
 //! Primitives plus a structure: the lecture's Surface interface.
 
 use crate::{
-    prims::BLOCK, Accel, AccelKind, AccelStats, BuildConfig, Bvh, Bvh4, Bvh8, CountStats, NoStats,
-    PrimHit, Primitives, RayCounter, TriangleMesh, Triangles,
+    packet::{Packet8, LANES},
+    prims::BLOCK,
+    Accel, AccelKind, AccelStats, BuildConfig, Bvh, Bvh4, Bvh8, CountStats, NoStats, PrimHit,
+    Primitives, RayCounter, TriangleMesh, Triangles,
 };
 use raymesh_geometry::{Aabb, Ray, Vec3};
 use rayon::prelude::*;
@@ -33,6 +35,12 @@ pub trait Surface: Send + Sync {
     fn intersect(&self, ray: &Ray) -> Option<Hit>;
     /// Whether anything is hit within the ray's interval (for shadow rays).
     fn occluded(&self, ray: &Ray) -> bool;
+    /// The closest hits of eight rays: [`Surface::intersect`] of each.
+    /// Structures that trace coherent rays together as a packet (a
+    /// [`Scene`] over a wide BVH) override it, with the same results.
+    fn intersect8(&self, rays: &[Ray; LANES]) -> [Option<Hit>; LANES] {
+        rays.each_ref().map(|r| self.intersect(r))
+    }
     /// [`Surface::intersect`], adding the nodes visited and primitives
     /// tested to `stats` (heat maps use it).
     fn intersect_count(&self, ray: &Ray, stats: &mut CountStats) -> Option<Hit> {
@@ -246,6 +254,76 @@ impl<P: Primitives> Scene<P> {
         }
     }
 
+    /// The closest hits of eight rays, bit for bit what
+    /// [`Self::intersect_counted`] gives each. Rays that share their
+    /// direction's octant and dominant axis (a camera's neighbouring
+    /// pixels) walk a BVH together as one [`Packet8`]: each node and leaf
+    /// is fetched once for the eight, its box tested against the eight
+    /// rays at once. Other rays, and other structures, are traced one by
+    /// one.
+    pub fn intersect8(&self, rays: &[Ray; LANES]) -> [Option<Hit>; LANES] {
+        let (Some(wide), Some(p)) = (self.wide_blocks(), Packet8::new(rays)) else {
+            return rays.each_ref().map(|r| self.intersect(r));
+        };
+        let mut best: [Option<(u32, PrimHit)>; LANES] = [None; LANES];
+        let mut tmax: [f32; LANES] = std::array::from_fn(|i| rays[i].tmax());
+        // Each lane's hit as `intersect_counted`'s offer: ties go to the
+        // least index the user gave.
+        let offer = |best: &mut Option<(u32, PrimHit)>, tmax: &mut f32, prim: u32, h: PrimHit| {
+            if h.t < *tmax
+                || best.is_none_or(|(b, _)| self.original_index(prim) < self.original_index(b))
+            {
+                *tmax = h.t;
+                *best = Some((prim, h));
+            }
+        };
+        let mut leaf = |first: u32, count: u32, lanes: u32, tmax: &mut [f32; LANES]| {
+            // A leaf tested lane by lane takes one block test per lane and
+            // block; triangle by triangle, one packet test per primitive.
+            // Fine meshes make leaves that few lanes reach: then the first.
+            if lanes.count_ones() * count.div_ceil(BLOCK as u32) < count {
+                let mut m = lanes;
+                while m != 0 {
+                    let i = m.trailing_zeros() as usize;
+                    m &= m - 1;
+                    for start in (first..first + count).step_by(BLOCK) {
+                        let n = (first + count - start).min(BLOCK as u32);
+                        let mut hits = [PrimHit::default(); BLOCK];
+                        let mut hit = self
+                            .prims
+                            .intersect_block(start, n, &rays[i], tmax[i], &mut hits);
+                        while hit != 0 {
+                            let k = hit.trailing_zeros();
+                            hit &= hit - 1;
+                            let h = hits[k as usize];
+                            if h.t <= tmax[i] {
+                                offer(&mut best[i], &mut tmax[i], start + k, h);
+                            }
+                        }
+                    }
+                }
+                return;
+            }
+            for prim in first..first + count {
+                let mut hits = [PrimHit::default(); LANES];
+                let mut m = self
+                    .prims
+                    .intersect_packet(prim, &p, lanes, tmax, &mut hits);
+                while m != 0 {
+                    let i = m.trailing_zeros() as usize;
+                    m &= m - 1;
+                    offer(&mut best[i], &mut tmax[i], prim, hits[i]);
+                }
+            }
+        };
+        match wide {
+            WideRef::W4(b) => b.traverse_packet(&p, &mut tmax, &mut leaf),
+            WideRef::W8(b) => b.traverse_packet(&p, &mut tmax, &mut leaf),
+            WideRef::W2(b) => b.traverse_packet(&p, &mut tmax, &mut leaf),
+        }
+        std::array::from_fn(|i| best[i].map(|(prim, h)| self.hit(prim, &rays[i], h)))
+    }
+
     /// Closest hit and what it cost.
     pub fn intersect_stats(&self, ray: &Ray) -> (Option<Hit>, CountStats) {
         let mut c = CountStats::default();
@@ -315,6 +393,9 @@ impl<P: Primitives> Surface for Scene<P> {
     #[inline]
     fn occluded(&self, ray: &Ray) -> bool {
         self.occluded_counted(ray, &mut NoStats)
+    }
+    fn intersect8(&self, rays: &[Ray; LANES]) -> [Option<Hit>; LANES] {
+        Scene::intersect8(self, rays)
     }
     fn intersect_count(&self, ray: &Ray, stats: &mut CountStats) -> Option<Hit> {
         self.intersect_counted(ray, stats)

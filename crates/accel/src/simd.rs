@@ -146,6 +146,82 @@ unsafe fn slab8_avx(
     _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(e, x)) as u32
 }
 
+/// The slab test of one box against the eight rays of a packet in AVX
+/// (one ray a lane, the box's `near` and `far` planes shared): the same
+/// entry distances and mask as [`crate::packet::slab_lanes`], bit for bit
+/// (a test below compares them). Panics without AVX2.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) fn packet_slab8(
+    rows: [&[[f32; 8]; 3]; 2],
+    tmin: &[f32; 8],
+    near: [f32; 3],
+    far: [f32; 3],
+    bound: &[f32; 8],
+) -> (u32, [f32; 8]) {
+    assert!(cpu_has_avx2());
+    let mut e = [0.0f32; 8];
+    // SAFETY: every pointer addresses 8 floats (the array types say so),
+    // and the CPU has AVX2 (asserted).
+    let mask = unsafe { packet_slab8_avx(rows, tmin, near, far, bound, &mut e) };
+    (mask, e)
+}
+
+/// # Safety
+/// The CPU must have AVX.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn packet_slab8_avx(
+    [origin, inv_dir]: [&[[f32; 8]; 3]; 2],
+    tmin: &[f32; 8],
+    near: [f32; 3],
+    far: [f32; 3],
+    bound: &[f32; 8],
+    out: &mut [f32; 8],
+) -> u32 {
+    use std::arch::x86_64::*;
+    let pad = _mm256_set1_ps(raymesh_geometry::ROBUST_EXIT);
+    let mut e = _mm256_loadu_ps(tmin.as_ptr());
+    let mut x = _mm256_loadu_ps(bound.as_ptr());
+    // z first, as the portable loop nests it.
+    for a in (0..3).rev() {
+        let o = _mm256_loadu_ps(origin[a].as_ptr());
+        let inv = _mm256_loadu_ps(inv_dir[a].as_ptr());
+        let lo = _mm256_mul_ps(_mm256_sub_ps(_mm256_set1_ps(near[a]), o), inv);
+        let hi = _mm256_mul_ps(
+            _mm256_mul_ps(_mm256_sub_ps(_mm256_set1_ps(far[a]), o), inv),
+            pad,
+        );
+        // max_ps(a, b) is max_nan_second(a, b); min_ps likewise.
+        e = _mm256_max_ps(lo, e);
+        x = _mm256_min_ps(hi, x);
+    }
+    _mm256_storeu_ps(out.as_mut_ptr(), e);
+    _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(e, x)) as u32
+}
+
+/// A bit per lane where `a <= b` (false for NaN), in AVX: what
+/// [`crate::packet::le_mask`]'s portable loop gives. Panics without AVX2.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) fn le_mask8(a: &[f32; 8], b: &[f32; 8]) -> u32 {
+    assert!(cpu_has_avx2());
+    // SAFETY: both arrays hold 8 floats, and the CPU has AVX2 (asserted).
+    unsafe { le_mask8_avx(a, b) }
+}
+
+/// # Safety
+/// The CPU must have AVX.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn le_mask8_avx(a: &[f32; 8], b: &[f32; 8]) -> u32 {
+    use std::arch::x86_64::*;
+    let (a, b) = (_mm256_loadu_ps(a.as_ptr()), _mm256_loadu_ps(b.as_ptr()));
+    _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(a, b)) as u32
+}
+
 /// The watertight ray–triangle test of
 /// [`raymesh_geometry::intersect_triangle`] on up to 8 triangles at once:
 /// lanes `first..first + count` of 9 rows (corner × axis) laid `stride`

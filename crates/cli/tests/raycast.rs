@@ -106,6 +106,30 @@ fn every_structure_writes_the_same_hits() {
             reference.as_ref() == Some(&npy_data(&out)),
             "{w}: bvh8 --no-simd wrote other hits than brute force"
         );
+        // Packets of eight rays, with and without the SIMD kernels.
+        for (accel, simd) in [
+            ("bvh8", true),
+            ("bvh4", true),
+            ("bvh-binned", true),
+            ("bvh8", false),
+        ] {
+            let out = dir.join(format!("{w}-{accel}-packets.npy"));
+            let mut cmd = raymesh();
+            cmd.arg("raycast")
+                .arg(&mesh)
+                .arg("--rays")
+                .arg(&rays)
+                .args(["--accel", accel, "--packets", "--out"])
+                .arg(&out);
+            if !simd {
+                cmd.arg("--no-simd");
+            }
+            run_ok(&mut cmd);
+            assert!(
+                reference.as_ref() == Some(&npy_data(&out)),
+                "{w}: {accel} --packets (simd {simd}) wrote other hits than brute force"
+            );
+        }
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -1,6 +1,7 @@
 //! Rendering: tiles on all cores, stratified samples, shading or heat map.
 
 use crate::World;
+use raymesh_accel::{Ray, LANES};
 use raymesh_geometry::Vec3;
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -79,24 +80,63 @@ pub fn render(world: &World, opts: Options, progress: &(dyn Fn(u64, u64) + Sync)
         .map(|t| {
             let (x0, y0) = ((t % tiles_x) * TILE, (t / tiles_x) * TILE);
             let (x1, y1) = ((x0 + TILE).min(w), (y0 + TILE).min(h));
-            let mut out = Vec::with_capacity(((x1 - x0) * (y1 - y0)) as usize);
+            let tw = x1 - x0;
+            let mut out = vec![Vec3::ZERO; (tw * (y1 - y0)) as usize];
             let mut rays = 0u64;
-            for y in y0..y1 {
-                for x in x0..x1 {
-                    let mut acc = Vec3::ZERO;
-                    for k in 0..spp {
-                        let (sx, sy) = sample(x, y, k, spp);
-                        let ray = world.camera.ray(sx / w as f32, sy / h as f32);
-                        acc += match opts.mode {
-                            Mode::Shade => world.trace(&ray, 0, &mut rays),
-                            Mode::Heatmap => {
-                                rays += 1;
-                                Vec3::new(world.cost(&ray) as f32, 0.0, 0.0)
+            let camera = |x: u32, y: u32, k: u32| {
+                let (sx, sy) = sample(x, y, k, spp);
+                world.camera.ray(sx / w as f32, sy / h as f32)
+            };
+            match opts.mode {
+                Mode::Shade => {
+                    // Camera rays eight at a time, as packets: the samples
+                    // of 4 × 2 pixel blocks, each pixel's in order (so each
+                    // pixel sums its samples as one by one would).
+                    let mut batch = Vec::with_capacity(LANES);
+                    let mut flush = |batch: &mut Vec<(usize, Ray)>, out: &mut [Vec3]| {
+                        if let Ok(packet) = <[(usize, Ray); LANES]>::try_from(batch.as_slice()) {
+                            let c = world.trace8(&packet.map(|(_, r)| r), &mut rays);
+                            for ((p, _), c) in packet.iter().zip(c) {
+                                out[*p] += c;
                             }
-                        };
+                        } else {
+                            for (p, r) in batch.iter() {
+                                out[*p] += world.trace(r, 0, &mut rays);
+                            }
+                        }
+                        batch.clear();
+                    };
+                    for by in (y0..y1).step_by(2) {
+                        for bx in (x0..x1).step_by(4) {
+                            for y in by..(by + 2).min(y1) {
+                                for x in bx..(bx + 4).min(x1) {
+                                    let p = ((y - y0) * tw + (x - x0)) as usize;
+                                    for k in 0..spp {
+                                        batch.push((p, camera(x, y, k)));
+                                        if batch.len() == LANES {
+                                            flush(&mut batch, &mut out);
+                                        }
+                                    }
+                                }
+                            }
+                        }
                     }
-                    out.push(acc / spp as f32);
+                    flush(&mut batch, &mut out);
                 }
+                Mode::Heatmap => {
+                    for y in y0..y1 {
+                        for x in x0..x1 {
+                            let p = ((y - y0) * tw + (x - x0)) as usize;
+                            for k in 0..spp {
+                                rays += 1;
+                                out[p] += Vec3::new(world.cost(&camera(x, y, k)) as f32, 0.0, 0.0);
+                            }
+                        }
+                    }
+                }
+            }
+            for c in &mut out {
+                *c /= spp as f32;
             }
             progress(done.fetch_add(1, Ordering::Relaxed) + 1, tiles);
             (x0, y0, out, rays)

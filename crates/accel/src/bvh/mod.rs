@@ -13,10 +13,12 @@ pub use build::BvhBuilder;
 pub(crate) use wide::slab_scalar;
 pub use wide::{BoxRay, Bvh4, Bvh8, Node4, Node8, WideBvh, WideNode};
 
-use crate::{AccelStats, Leaf, RayCounter};
+use crate::packet::{self, Packet8, LANES};
+use crate::{simd, AccelStats, Leaf, RayCounter};
 use raymesh_geometry::{
     cull_bound, max_nan_second as max_ns, min_nan_second as min_ns, Aabb, Ray, Vec3, ROBUST_EXIT,
 };
+use wide::{PacketEntry, Stack};
 
 /// Most nodes a traversal stack can hold. Builders never make a tree deeper
 /// than this: past [`build::SAH_DEPTH_LIMIT`] levels they split by count,
@@ -365,6 +367,95 @@ impl Bvh {
                     break;
                 }
             }
+        }
+    }
+}
+
+impl Bvh {
+    /// Packet traversal (see [`WideBvh::traverse_packet`], the same
+    /// contract): both children's boxes are tested against every active
+    /// lane; when lanes enter both, the child that the lowest such lane
+    /// enters first is visited first, the other pushed with its lanes.
+    #[inline]
+    pub(crate) fn traverse_packet(
+        &self,
+        p: &Packet8,
+        tmax: &mut [f32; LANES],
+        leaf: &mut impl FnMut(u32, u32, u32, &mut [f32; LANES]),
+    ) {
+        if self.pairs.is_empty() {
+            return;
+        }
+        #[cfg(target_arch = "x86_64")]
+        if simd::has_avx2() {
+            return simd::with_avx2(|| self.packet_loop(p, tmax, leaf));
+        }
+        self.packet_loop(p, tmax, leaf);
+    }
+
+    #[inline(always)]
+    fn packet_loop(
+        &self,
+        p: &Packet8,
+        tmax: &mut [f32; LANES],
+        leaf: &mut impl FnMut(u32, u32, u32, &mut [f32; LANES]),
+    ) {
+        let test = |n: &Node, bound: &[f32; LANES]| packet::slab(p, n.min, n.max, bound);
+        let bound: [f32; LANES] = std::array::from_fn(|i| cull_bound(tmax[i]));
+        let (lanes, entry) = test(self.node(0), &bound);
+        let mut stack = Stack::new(PacketEntry::NONE);
+        // `child` is the node's index here.
+        let mut cur = PacketEntry {
+            child: 0,
+            count: 0,
+            lanes,
+            entry,
+        };
+        loop {
+            let bound: [f32; LANES] = std::array::from_fn(|i| cull_bound(tmax[i]));
+            let lanes = cur.lanes & packet::le_mask(&cur.entry, &bound);
+            if lanes != 0 {
+                let node = self.node(cur.child);
+                if node.is_leaf() {
+                    leaf(node.index, node.count, lanes, tmax);
+                } else {
+                    let pair = &self.pairs[(node.index >> 1) as usize].0;
+                    let (ml, el) = test(&pair[0], &bound);
+                    let (mr, er) = test(&pair[1], &bound);
+                    let (ml, mr) = (ml & lanes, mr & lanes);
+                    let l = PacketEntry {
+                        child: node.index,
+                        count: 0,
+                        lanes: ml,
+                        entry: el,
+                    };
+                    let r = PacketEntry {
+                        child: node.index + 1,
+                        lanes: mr,
+                        entry: er,
+                        ..l
+                    };
+                    if ml != 0 && mr != 0 {
+                        let both = (ml & mr).trailing_zeros() as usize;
+                        let (near, far) = if both < LANES && el[both] > er[both] {
+                            (r, l)
+                        } else {
+                            (l, r)
+                        };
+                        stack.push(far);
+                        cur = near;
+                        continue;
+                    } else if ml != 0 {
+                        cur = l;
+                        continue;
+                    } else if mr != 0 {
+                        cur = r;
+                        continue;
+                    }
+                }
+            }
+            let Some(e) = stack.pop() else { return };
+            cur = e;
         }
     }
 }

@@ -8,6 +8,7 @@
 //! has AVX2, and the same plain loops elsewhere.
 
 use super::{each_prim, Bvh};
+use crate::packet::{self, Packet8, LANES};
 use crate::prims::BLOCK;
 use crate::simd;
 use crate::{AccelStats, Leaf, RayCounter};
@@ -330,7 +331,7 @@ impl<const W: usize> WideBvh<W> {
         let r = BoxRay::new(ray);
         let tmin = ray.tmin();
         let mut tmax = ray.tmax();
-        let mut stack = Stack::new();
+        let mut stack = Stack::new(Entry::NONE);
         // The item being visited: the nearest child entered goes straight
         // here instead of through the stack (one push and pop fewer per
         // node), the others onto the stack farthest first.
@@ -405,6 +406,118 @@ impl<const W: usize> WideBvh<W> {
             }
         }
     }
+}
+
+impl<const W: usize> WideBvh<W> {
+    /// Packet traversal: the eight rays of `p` walk the tree together,
+    /// each node's boxes tested against every lane still active. Children
+    /// that some lane enters are visited nearest first (by the least entry
+    /// distance among their lanes), each with the lanes that enter it; a
+    /// lane drops out of a subtree when its entry lies beyond its own
+    /// `tmax`. Each leaf reached calls `leaf(first, count, lanes, tmax)`,
+    /// which tests the lanes in `lanes` and lowers their `tmax`.
+    #[inline]
+    pub(crate) fn traverse_packet(
+        &self,
+        p: &Packet8,
+        tmax: &mut [f32; LANES],
+        leaf: &mut impl FnMut(u32, u32, u32, &mut [f32; LANES]),
+    ) {
+        if self.nodes.is_empty() {
+            return;
+        }
+        #[cfg(target_arch = "x86_64")]
+        if simd::has_avx2() {
+            return simd::with_avx2(|| self.packet_loop(p, tmax, leaf));
+        }
+        self.packet_loop(p, tmax, leaf);
+    }
+
+    #[inline(always)]
+    fn packet_loop(
+        &self,
+        p: &Packet8,
+        tmax: &mut [f32; LANES],
+        leaf: &mut impl FnMut(u32, u32, u32, &mut [f32; LANES]),
+    ) {
+        let mut stack = Stack::new(PacketEntry::NONE);
+        let mut cur = PacketEntry {
+            child: 0,
+            count: 0,
+            lanes: (1 << LANES) - 1,
+            entry: p.tmin,
+        };
+        loop {
+            let bound: [f32; LANES] = std::array::from_fn(|i| cull_bound(tmax[i]));
+            let lanes = cur.lanes & packet::le_mask(&cur.entry, &bound);
+            if lanes != 0 {
+                if cur.count > 0 {
+                    leaf(cur.child, cur.count, lanes, tmax);
+                } else {
+                    let n = &self.nodes[cur.child as usize];
+                    // Entered children, farthest first.
+                    let mut hits = [(0.0f32, PacketEntry::NONE); W];
+                    let mut h = 0;
+                    for c in 0..W {
+                        if !n.is_used(c) {
+                            break;
+                        }
+                        let min = [n.min[0][c], n.min[1][c], n.min[2][c]];
+                        let max = [n.max[0][c], n.max[1][c], n.max[2][c]];
+                        let (m, entry) = packet::slab(p, min, max, &bound);
+                        let m = m & lanes;
+                        if m == 0 {
+                            continue;
+                        }
+                        let key = (0..LANES)
+                            .filter(|&i| m >> i & 1 != 0)
+                            .fold(f32::INFINITY, |k, i| min_ns(entry[i], k));
+                        let item = PacketEntry {
+                            child: n.child[c],
+                            count: n.count[c],
+                            lanes: m,
+                            entry,
+                        };
+                        let mut j = h;
+                        while j > 0 && hits[j - 1].0 < key {
+                            hits[j] = hits[j - 1];
+                            j -= 1;
+                        }
+                        hits[j] = (key, item);
+                        h += 1;
+                    }
+                    if h > 0 {
+                        for (_, item) in &hits[..h - 1] {
+                            stack.push(*item);
+                        }
+                        cur = hits[h - 1].1;
+                        continue;
+                    }
+                }
+            }
+            let Some(e) = stack.pop() else { return };
+            cur = e;
+        }
+    }
+}
+
+/// A packet traversal's stack item: a node (`count == 0`) or a leaf, the
+/// lanes that enter its box, and their entry distances.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct PacketEntry {
+    pub(super) child: u32,
+    pub(super) count: u32,
+    pub(super) lanes: u32,
+    pub(super) entry: [f32; LANES],
+}
+
+impl PacketEntry {
+    pub(super) const NONE: Self = Self {
+        child: 0,
+        count: 0,
+        lanes: 0,
+        entry: [0.0; LANES],
+    };
 }
 
 /// Cost of one wide node test, relative to the node's box area (the SAH's
@@ -652,24 +765,25 @@ const INLINE: usize = 32;
 
 /// A traversal stack: a small inline array (cheap to set up per ray) that
 /// spills to a `Vec` on degenerate trees, so no depth bound is needed.
-struct Stack {
-    items: [Entry; INLINE],
+pub(super) struct Stack<T> {
+    items: [T; INLINE],
     len: usize,
-    spill: Vec<Entry>,
+    spill: Vec<T>,
 }
 
-impl Stack {
+impl<T: Copy> Stack<T> {
+    /// An empty stack; `none` fills the inline array.
     #[inline(always)]
-    fn new() -> Self {
+    pub(super) fn new(none: T) -> Self {
         Self {
-            items: [Entry::NONE; INLINE],
+            items: [none; INLINE],
             len: 0,
             spill: Vec::new(),
         }
     }
 
     #[inline(always)]
-    fn push(&mut self, e: Entry) {
+    pub(super) fn push(&mut self, e: T) {
         if self.len < INLINE {
             self.items[self.len] = e;
             self.len += 1;
@@ -679,7 +793,7 @@ impl Stack {
     }
 
     #[inline(always)]
-    fn pop(&mut self) -> Option<Entry> {
+    pub(super) fn pop(&mut self) -> Option<T> {
         if !self.spill.is_empty() {
             return self.spill.pop();
         }
@@ -699,7 +813,7 @@ mod tests {
     /// part too.
     #[test]
     fn stack_spills_and_keeps_order() {
-        let mut stack = Stack::new();
+        let mut stack = Stack::new(Entry::NONE);
         let n = 3 * INLINE as u32 + 5;
         for i in 0..n {
             stack.push(Entry {

@@ -1,0 +1,376 @@
+//! Ray packets: eight rays traced together through a wide BVH, so that a
+//! node's boxes and a leaf's triangles are fetched once for the eight and
+//! tested with each ray in one SIMD lane (Wald, Slusallek, Benthin &
+//! Wagner, "Interactive rendering with coherent ray tracing", 2001; Wald,
+//! Boulos & Shirley, "Ray tracing deformable scenes using dynamic bounding
+//! volume hierarchies", 2007). Coherent rays (a camera's neighbouring
+//! pixels) visit nearly the same nodes, so the packet pays for a node once
+//! where single rays pay eight times.
+//!
+//! Exact: a packet is made only of rays that share their direction's
+//! octant and dominant axis, so every lane runs the single-ray arithmetic
+//! of [`crate::bvh::slab_scalar`] and [`raymesh_geometry::intersect_triangle`]
+//! in the same order, with no fused multiply-add; each lane culls only what
+//! its own ray would cull, and the closest hit (least `t`, ties to the least
+//! index) is the one the single-ray traversal returns, bit for bit. The
+//! loops below are plain Rust over eight lanes, which the compiler turns
+//! into AVX under [`crate::simd::with_avx2`] and into SSE elsewhere.
+
+use crate::PrimHit;
+use raymesh_geometry::{
+    intersect_triangle, max_nan_second as max_ns, min_nan_second as min_ns, Ray, Vec3, ROBUST_EXIT,
+};
+
+/// Rays in a packet: one per SIMD lane of AVX.
+pub const LANES: usize = 8;
+
+/// Eight rays in structure-of-arrays form, with what the box and triangle
+/// tests need of each, for [`crate::Scene::intersect8`]. All share their
+/// direction's octant and dominant axis (see [`Packet8::new`]).
+#[derive(Clone, Debug)]
+pub struct Packet8 {
+    /// The rays, for the lanes that need the scalar test's f64 path.
+    pub(crate) rays: [Ray; LANES],
+    /// Origins by axis.
+    origin: [[f32; LANES]; 3],
+    /// Reciprocal directions by axis.
+    inv_dir: [[f32; LANES]; 3],
+    /// Lower ends of the intervals.
+    pub(crate) tmin: [f32; LANES],
+    /// Which axes run backwards (the same for every lane).
+    neg: [bool; 3],
+    /// The watertight test's axis order `(kx, ky, kz)` (every lane's).
+    k: [usize; 3],
+    /// Origins in that axis order.
+    porigin: [[f32; LANES]; 3],
+    /// Shear constants of each lane (see [`Ray::shear`]).
+    shear: [[f32; LANES]; 3],
+}
+
+impl Packet8 {
+    /// The packet of `rays`, or `None` unless every ray is valid and all
+    /// share their direction's octant and axis order (then each lane's
+    /// tests are the single-ray tests; callers trace the rays one by one
+    /// otherwise).
+    #[must_use]
+    pub fn new(rays: &[Ray; LANES]) -> Option<Self> {
+        let (_, k) = rays[0].shear();
+        let oct = rays[0].octant();
+        if !rays
+            .iter()
+            .all(|r| r.is_valid() && r.octant() == oct && r.shear().1 == k)
+        {
+            return None;
+        }
+        let mut q = Self {
+            rays: *rays,
+            origin: [[0.0; LANES]; 3],
+            inv_dir: [[0.0; LANES]; 3],
+            tmin: [0.0; LANES],
+            neg: [oct & 1 != 0, oct & 2 != 0, oct & 4 != 0],
+            k,
+            porigin: [[0.0; LANES]; 3],
+            shear: [[0.0; LANES]; 3],
+        };
+        for (i, r) in rays.iter().enumerate() {
+            let (o, inv, s) = (r.origin().to_array(), r.inv_dir().to_array(), r.shear().0);
+            for a in 0..3 {
+                q.origin[a][i] = o[a];
+                q.inv_dir[a][i] = inv[a];
+                q.porigin[a][i] = o[k[a]];
+                q.shear[a][i] = s[a];
+            }
+            q.tmin[i] = r.tmin();
+        }
+        Some(q)
+    }
+}
+
+impl Packet8 {
+    /// Lane `k`'s ray.
+    #[must_use]
+    pub fn ray(&self, k: usize) -> &Ray {
+        &self.rays[k]
+    }
+}
+
+/// The slab test of one box (`min`, `max`) against every lane, clipped to
+/// each lane's `[tmin, bound]`: a bit per lane that enters the box, and each
+/// lane's entry distance. Per lane, the arithmetic of
+/// [`crate::bvh::slab_scalar`] in its order, so the bits are the same.
+/// Uses the AVX kernel where the CPU has it (bit-identical results).
+#[inline(always)]
+pub(crate) fn slab(
+    p: &Packet8,
+    min: [f32; 3],
+    max: [f32; 3],
+    bound: &[f32; LANES],
+) -> (u32, [f32; LANES]) {
+    let pick = |a: usize| {
+        if p.neg[a] {
+            (max[a], min[a])
+        } else {
+            (min[a], max[a])
+        }
+    };
+    let (near, far) = ([0, 1, 2].map(|a| pick(a).0), [0, 1, 2].map(|a| pick(a).1));
+    #[cfg(target_arch = "x86_64")]
+    if crate::simd::has_avx2() {
+        return crate::simd::packet_slab8([&p.origin, &p.inv_dir], &p.tmin, near, far, bound);
+    }
+    slab_lanes(p, near, far, bound)
+}
+
+/// [`slab`]'s portable loop, given each axis's near and far plane.
+#[inline(always)]
+pub(crate) fn slab_lanes(
+    p: &Packet8,
+    near: [f32; 3],
+    far: [f32; 3],
+    bound: &[f32; LANES],
+) -> (u32, [f32; LANES]) {
+    let mut e = p.tmin;
+    let mut x = *bound;
+    // slab_scalar nests z innermost: max(lo_x, max(lo_y, max(lo_z, tmin))).
+    for a in (0..3).rev() {
+        let (near, far) = (near[a], far[a]);
+        for i in 0..LANES {
+            let lo = (near - p.origin[a][i]) * p.inv_dir[a][i];
+            let hi = (far - p.origin[a][i]) * p.inv_dir[a][i] * ROBUST_EXIT;
+            e[i] = max_ns(lo, e[i]);
+            x[i] = min_ns(hi, x[i]);
+        }
+    }
+    (lane_mask(&std::array::from_fn(|i| e[i] <= x[i])), e)
+}
+
+/// A bit per lane where `a <= b` (none for NaN), in AVX where the CPU
+/// has it.
+#[inline(always)]
+pub(crate) fn le_mask(a: &[f32; LANES], b: &[f32; LANES]) -> u32 {
+    #[cfg(target_arch = "x86_64")]
+    if crate::simd::has_avx2() {
+        return crate::simd::le_mask8(a, b);
+    }
+    lane_mask(&std::array::from_fn(|i| a[i] <= b[i]))
+}
+
+/// A bit per lane that is `true`.
+#[inline(always)]
+pub(crate) fn lane_mask(b: &[bool; LANES]) -> u32 {
+    b.iter()
+        .enumerate()
+        .fold(0, |m, (i, &b)| m | (u32::from(b) << i))
+}
+
+/// The watertight ray–triangle test of
+/// [`raymesh_geometry::intersect_triangle`] for every lane of the packet
+/// against one triangle, each lane over `[tmin, tmax[lane]]`: writes the
+/// hits of the lanes in `lanes` to `out` and returns their mask. Lanes
+/// whose edge function rounds to exactly zero take the scalar test (its
+/// f64 path), as the single-ray kernels do.
+#[inline]
+pub(crate) fn triangle(
+    p: &Packet8,
+    corners: [Vec3; 3],
+    lanes: u32,
+    tmax: &[f32; LANES],
+    out: &mut [PrimHit; LANES],
+) -> u32 {
+    #[cfg(target_arch = "x86_64")]
+    if crate::simd::has_avx2() {
+        return crate::simd::with_avx2(|| triangle_lanes(p, corners, lanes, tmax, out));
+    }
+    triangle_lanes(p, corners, lanes, tmax, out)
+}
+
+/// [`triangle`]'s body, inlined into the AVX2 and the portable callers.
+#[inline(always)]
+fn triangle_lanes(
+    p: &Packet8,
+    corners: [Vec3; 3],
+    lanes: u32,
+    tmax: &[f32; LANES],
+    out: &mut [PrimHit; LANES],
+) -> u32 {
+    let [kx, ky, kz] = p.k;
+    let c = corners.map(|v| {
+        let a = v.to_array();
+        [a[kx], a[ky], a[kz]]
+    });
+    let (mut t, mut bu, mut bv) = ([0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES]);
+    let (mut ok, mut redo) = ([false; LANES], [false; LANES]);
+    for i in 0..LANES {
+        let (o, s) = (
+            [p.porigin[0][i], p.porigin[1][i], p.porigin[2][i]],
+            [p.shear[0][i], p.shear[1][i], p.shear[2][i]],
+        );
+        let rel = |q: [f32; 3]| [q[0] - o[0], q[1] - o[1], q[2] - o[2]];
+        let (a, b, cc) = (rel(c[0]), rel(c[1]), rel(c[2]));
+        let (ax, ay) = (a[0] - s[0] * a[2], a[1] - s[1] * a[2]);
+        let (bx, by) = (b[0] - s[0] * b[2], b[1] - s[1] * b[2]);
+        let (cx, cy) = (cc[0] - s[0] * cc[2], cc[1] - s[1] * cc[2]);
+        let u = cx * by - cy * bx;
+        let v = ax * cy - ay * cx;
+        let w = bx * ay - by * ax;
+        // `|` and `&`, not `||` and `&&`: no branches, so the lanes vectorize.
+        redo[i] = (u == 0.0) | (v == 0.0) | (w == 0.0);
+        let outside = ((u < 0.0) | (v < 0.0) | (w < 0.0)) & ((u > 0.0) | (v > 0.0) | (w > 0.0));
+        let det = u + v + w;
+        let t_scaled = u * (s[2] * a[2]) + v * (s[2] * b[2]) + w * (s[2] * cc[2]);
+        let inv_det = 1.0 / det;
+        t[i] = t_scaled * inv_det;
+        bu[i] = v * inv_det;
+        bv[i] = w * inv_det;
+        // `det != 0.0` alone would let NaN through; `t >= tmin` rejects NaN.
+        ok[i] = !outside & (det != 0.0) & !det.is_nan() & (t[i] >= p.tmin[i]) & (t[i] <= tmax[i]);
+    }
+    let redo = lane_mask(&redo) & lanes;
+    let mut hit = lane_mask(&ok) & lanes & !redo;
+    let mut m = hit;
+    while m != 0 {
+        let i = m.trailing_zeros() as usize;
+        m &= m - 1;
+        out[i] = PrimHit {
+            t: t[i],
+            u: bu[i],
+            v: bv[i],
+        };
+    }
+    let mut m = redo;
+    while m != 0 {
+        let i = m.trailing_zeros() as usize;
+        m &= m - 1;
+        let [a, b, cc] = corners;
+        if let Some(h) = intersect_triangle(&p.rays[i], tmax[i], a, b, cc) {
+            out[i] = PrimHit {
+                t: h.t,
+                u: h.u,
+                v: h.v,
+            };
+            hit |= 1 << i;
+        }
+    }
+    hit
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bvh::{slab_scalar, BoxRay, Node8};
+    use raymesh_geometry::Aabb;
+
+    fn rng(mut seed: u64) -> impl FnMut() -> f32 {
+        move || {
+            seed = seed
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (seed >> 40) as f32 / (1u64 << 24) as f32 * 4.0 - 2.0
+        }
+    }
+
+    /// Eight rays from near one point in one octant, as a camera makes.
+    fn coherent(f: &mut impl FnMut() -> f32) -> [Ray; LANES] {
+        let o = Vec3::new(f(), f(), f()) * 3.0;
+        let d = Vec3::new(
+            1.0 + f().abs(),
+            0.1 + f().abs() * 0.2,
+            -0.1 - f().abs() * 0.2,
+        );
+        std::array::from_fn(|_| {
+            let j = Vec3::new(f(), f(), f()) * 0.01;
+            Ray::new(o + j, d + j, 0.0, f32::INFINITY)
+        })
+    }
+
+    /// Each lane's box test gives the single-ray node test's bits.
+    #[test]
+    fn packet_slab_matches_the_single_ray_test() {
+        let mut f = rng(7);
+        for _ in 0..300 {
+            let rays = coherent(&mut f);
+            let p = Packet8::new(&rays).expect("one octant and axis order");
+            let q = Vec3::new(f(), f(), f());
+            let b = Aabb::new(q, q + Vec3::new(f().abs(), f().abs(), f().abs()));
+            let mut bound: [f32; LANES] = std::array::from_fn(|_| f().abs() * 8.0);
+            bound[3] = f32::NAN;
+            for simd in [true, false] {
+                crate::set_simd_enabled(simd);
+                let (mask, e) = slab(&p, b.min.to_array(), b.max.to_array(), &bound);
+                let le = le_mask(&e, &bound);
+                crate::set_simd_enabled(true);
+                for (i, r) in rays.iter().enumerate() {
+                    let mut t = [0.0f32; 8];
+                    let node = Node8::from_boxes(&[b]);
+                    let m = slab_scalar(&node, &BoxRay::new(r), bound[i], &mut t);
+                    assert_eq!(mask >> i & 1, m & 1, "lane {i}, simd {simd}");
+                    // Entries of lanes that miss matter too: pops compare them.
+                    assert_eq!(e[i].to_bits(), t[0].to_bits(), "lane {i}, simd {simd}");
+                    assert_eq!(le >> i & 1 == 1, e[i] <= bound[i], "lane {i}, simd {simd}");
+                }
+            }
+        }
+    }
+
+    /// Each lane's triangle test gives the scalar test's hit, bit for bit,
+    /// edge-on and corner-through cases included.
+    #[test]
+    fn packet_triangle_matches_the_scalar_test() {
+        let mut f = rng(11);
+        for n in 0..2000 {
+            let rays = coherent(&mut f);
+            let p = Packet8::new(&rays).expect("one octant and axis order");
+            let mut tri = [
+                Vec3::new(f(), f(), f()) + Vec3::X * 3.0,
+                Vec3::new(f(), f(), f()) + Vec3::X * 3.0,
+                Vec3::new(f(), f(), f()) + Vec3::X * 3.0,
+            ];
+            if n % 7 == 0 {
+                // Through the first ray's origin: edge functions of zero.
+                tri[0] = rays[0].origin() + rays[0].dir() * 2.0;
+            }
+            if n % 11 == 0 {
+                tri[2] = tri[1]; // degenerate
+            }
+            let tmax: [f32; LANES] = std::array::from_fn(|_| f().abs() * 10.0);
+            let lanes = if n % 3 == 0 { 0xff } else { 0b1010_1101 };
+            for simd in [true, false] {
+                crate::set_simd_enabled(simd);
+                let mut out = [PrimHit::default(); LANES];
+                let mask = triangle(&p, tri, lanes, &tmax, &mut out);
+                crate::set_simd_enabled(true);
+                for (i, r) in rays.iter().enumerate() {
+                    let want = (lanes >> i & 1 == 1)
+                        .then(|| intersect_triangle(r, tmax[i], tri[0], tri[1], tri[2]))
+                        .flatten();
+                    assert_eq!(mask >> i & 1 == 1, want.is_some(), "lane {i} of case {n}");
+                    if let Some(h) = want {
+                        let got = out[i];
+                        assert_eq!(
+                            [got.t, got.u, got.v].map(f32::to_bits),
+                            [h.t, h.u, h.v].map(f32::to_bits),
+                            "lane {i} of case {n}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    /// Rays of different octants or axis orders, or an invalid ray, make
+    /// no packet.
+    #[test]
+    fn mixed_rays_make_no_packet() {
+        let mut f = rng(3);
+        let mut rays = coherent(&mut f);
+        assert!(Packet8::new(&rays).is_some());
+        rays[5] = Ray::infinite(rays[5].origin(), -rays[5].dir());
+        assert!(Packet8::new(&rays).is_none());
+        let mut rays = coherent(&mut f);
+        rays[2] = Ray::infinite(Vec3::NAN, rays[2].dir());
+        assert!(Packet8::new(&rays).is_none());
+        let mut rays = coherent(&mut f);
+        rays[7] = Ray::infinite(rays[7].origin(), Vec3::new(0.1, 5.0, -0.1));
+        assert!(Packet8::new(&rays).is_none());
+    }
+}

@@ -1,0 +1,314 @@
+//! Eight rays traced together ([`Scene::intersect8`]) give, lane by lane,
+//! what each ray traced alone gives: the same primitive and the same bits
+//! of `t`, `u`, `v`. Coherent packets (which take the packet traversal)
+//! and mixed ones (traced one by one), over random soups, real meshes,
+//! spheres, instances and the hard cases.
+
+use proptest::prelude::*;
+use raymesh_accel::*;
+use raymesh_geometry::{Mat4, Sphere};
+use std::path::PathBuf;
+
+/// The structures: the wide BVHs take packets, the others fall back.
+const KINDS: [AccelKind; 5] = [
+    AccelKind::Bvh8,
+    AccelKind::Bvh4,
+    AccelKind::BvhBinned,
+    AccelKind::Grid,
+    AccelKind::Brute,
+];
+
+fn key(h: Option<Hit>) -> Option<(u32, u32, u32, u32, u32, [u32; 3])> {
+    h.map(|h| {
+        (
+            h.prim,
+            h.instance,
+            h.t.to_bits(),
+            h.u.to_bits(),
+            h.v.to_bits(),
+            h.normal.to_array().map(f32::to_bits),
+        )
+    })
+}
+
+/// Checks `intersect8` against `intersect` on each packet of `rays` (in
+/// eights, the last padded by repeating); returns how many packets were
+/// coherent enough to trace together.
+fn check(s: &dyn Surface, rays: &[Ray], what: &str) -> usize {
+    let mut coherent = 0;
+    for chunk in rays.chunks(LANES) {
+        let packet: [Ray; LANES] = std::array::from_fn(|i| chunk[i % chunk.len()]);
+        coherent += usize::from(Packet8::new(&packet).is_some());
+        let got = s.intersect8(&packet);
+        for (i, r) in packet.iter().enumerate() {
+            assert_eq!(key(got[i]), key(s.intersect(r)), "{what}: lane {i}: {r:?}");
+        }
+    }
+    coherent
+}
+
+/// Every kind over an indexed mesh, over its corner rows in leaf order
+/// (the renderer's scenes), and over the rows in the mesh's order.
+fn check_mesh(m: &TriangleMesh, rays: &[Ray]) -> usize {
+    let mut coherent = 0;
+    for kind in KINDS {
+        coherent += check(&Scene::from_mesh(m, kind), rays, &format!("{kind} rows"));
+        check(
+            &Scene::build(m.clone(), kind),
+            rays,
+            &format!("{kind} mesh"),
+        );
+        let rows = Triangles::from_mesh(m);
+        check(
+            &Scene::build(rows, kind),
+            rays,
+            &format!("{kind} built rows"),
+        );
+    }
+    coherent
+}
+
+/// Camera-like packets: eight rays from `o` toward points around `aim`,
+/// and eight toward the given targets (vertices, edge points) from `o`.
+fn camera_rays(o: Vec3, aims: &[Vec3], spread: f32, targets: &[Vec3]) -> Vec<Ray> {
+    let mut rays = Vec::new();
+    for (k, aim) in aims.iter().enumerate() {
+        for i in 0..LANES {
+            let j = Vec3::new((i % 4) as f32, (i / 4) as f32, (k % 3) as f32) * spread;
+            let tmax = if k % 4 == 3 { 1.0 } else { f32::INFINITY };
+            rays.push(Ray::new(o, *aim + j - o, 0.0, tmax));
+        }
+    }
+    for t in targets {
+        rays.push(Ray::infinite(o, *t - o));
+    }
+    rays
+}
+
+fn tri_mesh(tris: &[[Vec3; 3]]) -> TriangleMesh {
+    let positions: Vec<Vec3> = tris.iter().flatten().copied().collect();
+    let triangles = (0..tris.len() as u32)
+        .map(|i| [3 * i, 3 * i + 1, 3 * i + 2])
+        .collect();
+    TriangleMesh::new(positions, triangles)
+}
+
+fn point() -> impl Strategy<Value = Vec3> {
+    (-2.0f32..2.0, -2.0f32..2.0, -2.0f32..2.0).prop_map(|(x, y, z)| Vec3::new(x, y, z))
+}
+
+/// Triangles of a soup, their corners and edge midpoints, with some
+/// triangles sharing edges and duplicated.
+fn soup(tris: Vec<(Vec3, Vec3, Vec3)>) -> (Vec<[Vec3; 3]>, Vec<Vec3>) {
+    let mut t: Vec<[Vec3; 3]> = tris.into_iter().map(|(a, b, c)| [a, b, c]).collect();
+    if let Some(&[a, b, c]) = t.first() {
+        t.push([b, a, c + Vec3::Z]); // shares an edge
+        t.push([a, b, c]); // duplicate
+    }
+    let targets = t
+        .iter()
+        .take(8)
+        .flat_map(|&[a, b, c]| [a, b, c, (a + b) * 0.5, (a + b + c) / 3.0])
+        .collect();
+    (t, targets)
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 64, failure_persistence: None, ..ProptestConfig::default() })]
+
+    #[test]
+    fn random_soups(tris in proptest::collection::vec((point(), point(), point()), 0..120),
+                    origin in point(),
+                    aims in proptest::collection::vec(point(), 6),
+                    spread in prop_oneof![Just(0.0f32), 0.001f32..0.3]) {
+        let (tris, targets) = soup(tris);
+        let rays = camera_rays(origin * 3.0 + Vec3::Z * 4.0, &aims, spread, &targets);
+        check_mesh(&tri_mesh(&tris), &rays);
+    }
+
+    #[test]
+    fn spheres_and_mixes(spheres in proptest::collection::vec((point(), 0.05f32..0.8), 0..30),
+                         tris in proptest::collection::vec((point(), point(), point()), 0..30),
+                         origin in point(),
+                         aims in proptest::collection::vec(point(), 4)) {
+        let sph: Vec<Sphere> = spheres.iter().map(|&(c, r)| Sphere::new(c, r)).collect();
+        let (tris, targets) = soup(tris);
+        let rays = camera_rays(origin * 3.0 + Vec3::Z * 4.0, &aims, 0.05, &targets);
+        for kind in KINDS {
+            check(&Scene::build(Spheres(sph.clone()), kind), &rays, "spheres");
+            let mut mix: Vec<Shape> = sph.iter().copied().map(Shape::Sphere).collect();
+            mix.extend(tris.iter().copied().map(Shape::Triangle));
+            check(&Scene::build(Shapes(mix), kind), &rays, "mix");
+        }
+    }
+}
+
+fn load(name: &str) -> TriangleMesh {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../tests/data")
+        .join(name);
+    let m = raymesh_mesh::io::read_mesh(path).unwrap();
+    TriangleMesh::new(m.positions.clone(), m.triangles())
+}
+
+/// A camera's packets over real meshes: nearly all of them coherent, so
+/// the packet traversal is what is checked.
+#[test]
+fn real_meshes_through_a_camera() {
+    for name in [
+        "elephant-with-holes.off",
+        "sphere.ply",
+        "mesh_with_border.off",
+        "degtri_sliding.off",
+    ] {
+        let m = load(name);
+        let b = m.positions.iter().fold(Aabb::EMPTY, |a, p| a.grow(*p));
+        let (c, d) = (b.centroid(), b.diagonal());
+        let eye = c + Vec3::new(0.3, 0.4, 1.0).normalize() * 1.5 * d;
+        // A 64 × 32 image in 4 × 2 tiles, through the whole box.
+        let (w, h) = (64, 32);
+        let mut rays = Vec::new();
+        for ty in 0..h / 2 {
+            for tx in 0..w / 4 {
+                for i in 0..LANES {
+                    let (x, y) = (tx * 4 + i % 4, ty * 2 + i / 4);
+                    let p = b.min
+                        + (b.max - b.min)
+                            * Vec3::new(x as f32 / w as f32, y as f32 / h as f32, 0.5);
+                    rays.push(Ray::infinite(eye, p - eye));
+                }
+            }
+        }
+        // Exactly through vertices, from the eye.
+        rays.extend(
+            m.positions
+                .iter()
+                .take(64)
+                .map(|&p| Ray::infinite(eye, p - eye)),
+        );
+        let packets = rays.len().div_ceil(LANES);
+        let coherent = check_mesh(&m, &rays) / KINDS.len();
+        assert!(
+            coherent * 10 >= packets * 8,
+            "{name}: only {coherent} of {packets} packets were coherent"
+        );
+    }
+}
+
+/// Instances trace packets too, transformed into each object's space:
+/// packets that straddle instances (so lanes list different ones), and
+/// an instance placed twice in the same spot (ties go to the least
+/// instance).
+#[test]
+fn instances() {
+    let m = load("elephant-with-holes.off");
+    let size = m
+        .positions
+        .iter()
+        .fold(Aabb::EMPTY, |a, p| a.grow(*p))
+        .diagonal();
+    let objects = vec![
+        Scene::from_mesh(&m, AccelKind::Bvh8),
+        Scene::from_mesh(&m, AccelKind::BvhBinned),
+    ];
+    let place = |k: u32| {
+        Mat4::from_translation(Vec3::new(k as f32 * 2.0 * size, 0.0, 0.0))
+            * Mat4::from_rotation_y(k as f32 * 0.3)
+    };
+    let mut instances: Vec<Instance> = (0..6)
+        .map(|k| Instance {
+            object: k % 2,
+            transform: place(k),
+        })
+        .collect();
+    instances.push(Instance {
+        object: 1,
+        transform: place(0),
+    });
+    let top = |kind| Instances::build(objects.clone(), &instances, kind).unwrap();
+    let s = top(AccelKind::BvhBinned);
+    let b = s.bounds();
+    let eye = b.centroid() + Vec3::new(0.0, 0.3, 2.0) * b.diagonal();
+    let aims: Vec<Vec3> = (0..60)
+        .map(|i| {
+            let f = Vec3::new((i % 20) as f32 / 20.0, (i / 20) as f32 / 3.0 + 0.2, 0.5);
+            b.min + (b.max - b.min) * f
+        })
+        .collect();
+    let rays = camera_rays(eye, &aims, 0.1 * size, &[]);
+    // Packets whose lanes end on different instances, or some on none.
+    let mut straddling = 0;
+    for packet in rays.chunks_exact(LANES) {
+        let hit: Vec<_> = packet
+            .iter()
+            .map(|r| s.intersect(r).map(|h| h.instance))
+            .collect();
+        straddling += usize::from(hit.iter().any(|h| *h != hit[0]));
+    }
+    assert!(
+        straddling > 3,
+        "only {straddling} packets straddle instances"
+    );
+    // Top structures whose leaves hold one instance each, or several.
+    for kind in [
+        AccelKind::BvhBinned,
+        AccelKind::Grid,
+        AccelKind::KdTree,
+        AccelKind::Brute,
+    ] {
+        check(&top(kind), &rays, &format!("instances under {kind}"));
+    }
+}
+
+/// Hard cases: axis-parallel packets, rays starting inside boxes, rays
+/// along shared edges, huge coordinates, an empty scene, invalid lanes.
+#[test]
+fn hard_cases() {
+    let grid: Vec<[Vec3; 3]> = (0..64)
+        .flat_map(|i| {
+            let (x, y) = ((i % 8) as f32, (i / 8) as f32);
+            let p = |dx: f32, dy: f32| Vec3::new(x + dx, y + dy, 0.0);
+            [
+                [p(0.0, 0.0), p(1.0, 0.0), p(1.0, 1.0)],
+                [p(0.0, 0.0), p(1.0, 1.0), p(0.0, 1.0)],
+            ]
+        })
+        .collect();
+    let m = tri_mesh(&grid);
+    let mut rays = Vec::new();
+    // Axis-parallel, through vertices and along shared edges.
+    for i in 0..LANES {
+        rays.push(Ray::infinite(Vec3::new(i as f32, 2.0, 5.0), Vec3::NEG_Z));
+    }
+    for i in 0..LANES {
+        rays.push(Ray::infinite(
+            Vec3::new(i as f32 * 0.5 + 0.5, i as f32 * 0.5 + 0.5, -3.0),
+            Vec3::Z,
+        ));
+    }
+    // Grazing the plane, from inside the box.
+    for i in 0..LANES {
+        rays.push(Ray::infinite(
+            Vec3::new(0.5, i as f32, 0.0),
+            Vec3::new(1.0, 0.0, 1e-7),
+        ));
+    }
+    // One invalid lane among valid ones (traced one by one).
+    for i in 0..LANES {
+        let o = if i == 3 {
+            Vec3::NAN
+        } else {
+            Vec3::new(3.3, 2.2, 4.0)
+        };
+        rays.push(Ray::infinite(o, Vec3::new(0.01 * i as f32, 0.0, -1.0)));
+    }
+    let coherent = check_mesh(&m, &rays);
+    assert!(coherent > 0, "no packet was traced together");
+    let huge: Vec<[Vec3; 3]> = grid.iter().map(|t| t.map(|p| p * 1e30)).collect();
+    let rays_huge: Vec<Ray> = rays
+        .iter()
+        .map(|r| Ray::infinite(r.origin() * 1e30, r.dir()))
+        .collect();
+    check_mesh(&tri_mesh(&huge), &rays_huge);
+    check_mesh(&TriangleMesh::default(), &rays);
+}
