@@ -45,6 +45,23 @@ pub struct Packet8 {
     porigin: [[f32; LANES]; 3],
     /// Shear constants of each lane (see [`Ray::shear`]).
     shear: [[f32; LANES]; 3],
+    /// The packet's bounds for [`frustum`], when every lane's reciprocal
+    /// direction is finite.
+    pub(crate) frustum: Option<Frustum>,
+}
+
+/// What the interval slab test of a whole packet needs, per axis: the
+/// origin coordinate that gives the least entry into the near plane and
+/// the one that gives the greatest exit from the far plane, and the least
+/// and greatest reciprocal direction. Made only when every reciprocal
+/// direction is finite (and, the octant being shared, of one sign), so
+/// the test meets no `0 × inf`.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Frustum {
+    pub(crate) near_origin: [f32; 3],
+    pub(crate) far_origin: [f32; 3],
+    pub(crate) inv: [[f32; 2]; 3],
+    pub(crate) tmin: f32,
 }
 
 impl Packet8 {
@@ -71,6 +88,7 @@ impl Packet8 {
             k,
             porigin: [[0.0; LANES]; 3],
             shear: [[0.0; LANES]; 3],
+            frustum: None,
         };
         for (i, r) in rays.iter().enumerate() {
             let (o, inv, s) = (r.origin().to_array(), r.inv_dir().to_array(), r.shear().0);
@@ -82,11 +100,38 @@ impl Packet8 {
             }
             q.tmin[i] = r.tmin();
         }
+        let finite = q.inv_dir.iter().flatten().all(|x| x.is_finite());
+        q.frustum = finite.then(|| {
+            let lo = |v: &[f32; LANES]| v.iter().copied().fold(f32::INFINITY, f32::min);
+            let hi = |v: &[f32; LANES]| v.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+            // A ray running forward on an axis enters its near plane
+            // earliest from the greatest origin, backward from the least.
+            let (o_lo, o_hi) = (q.origin.each_ref().map(lo), q.origin.each_ref().map(hi));
+            let pick = |a: usize, fwd: [f32; 3], back: [f32; 3]| {
+                if q.neg[a] {
+                    back[a]
+                } else {
+                    fwd[a]
+                }
+            };
+            Frustum {
+                near_origin: [0, 1, 2].map(|a| pick(a, o_hi, o_lo)),
+                far_origin: [0, 1, 2].map(|a| pick(a, o_lo, o_hi)),
+                inv: q.inv_dir.each_ref().map(|v| [lo(v), hi(v)]),
+                tmin: lo(&q.tmin),
+            }
+        });
         Some(q)
     }
 }
 
 impl Packet8 {
+    /// Which axes the rays run backwards on.
+    #[must_use]
+    pub(crate) fn neg(&self) -> [bool; 3] {
+        self.neg
+    }
+
     /// Lane `k`'s ray.
     #[must_use]
     pub fn ray(&self, k: usize) -> &Ray {
@@ -142,6 +187,45 @@ pub(crate) fn slab_lanes(
         }
     }
     (lane_mask(&std::array::from_fn(|i| e[i] <= x[i])), e)
+}
+
+/// Which of `W` boxes (rows of lower and upper bounds by axis) some lane
+/// of the packet may enter before `bound` (the greatest of the lanes'
+/// bounds): the slab test in interval arithmetic over the packet's
+/// origins and reciprocal directions (Boulos et al., "Geometric and
+/// arithmetic culling methods for entire ray packets", 2006), one test for
+/// all eight rays. Conservative, exactly: IEEE rounding is monotone, so the
+/// interval's ends computed with the lanes' own operations bound every
+/// lane's own entry and exit, and a box left out is one no lane's own
+/// test ([`slab`]) enters. The lanes' tests then run only on the boxes
+/// kept.
+#[inline(always)]
+pub(crate) fn frustum<const W: usize>(
+    f: &Frustum,
+    neg: [bool; 3],
+    min: &[[f32; W]; 3],
+    max: &[[f32; W]; 3],
+    bound: f32,
+) -> u32 {
+    let mut e = [f.tmin; W];
+    let mut x = [bound; W];
+    for a in (0..3).rev() {
+        let (near, far) = if neg[a] {
+            (&max[a], &min[a])
+        } else {
+            (&min[a], &max[a])
+        };
+        let [i0, i1] = f.inv[a];
+        for c in 0..W {
+            let d = near[c] - f.near_origin[a];
+            let lo = min_ns(d * i0, d * i1);
+            let d = far[c] - f.far_origin[a];
+            let hi = max_ns(d * i0, d * i1) * ROBUST_EXIT;
+            e[c] = max_ns(lo, e[c]);
+            x[c] = min_ns(hi, x[c]);
+        }
+    }
+    (0..W).fold(0, |m, c| m | (u32::from(e[c] <= x[c]) << c))
 }
 
 /// A bit per lane where `a <= b` (none for NaN), in AVX where the CPU
@@ -310,6 +394,76 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The interval test of a node keeps every box some lane enters
+    /// (boxes empty, flat, huge or infinite too), with the AVX kernel and
+    /// the portable loop giving the same bits, and culls most boxes no
+    /// lane enters.
+    #[test]
+    fn frustum_keeps_every_box_a_lane_enters() {
+        let mut f = rng(5);
+        let (mut culled, mut missed) = (0, 0);
+        for n in 0..3000 {
+            let mut rays = coherent(&mut f);
+            if n % 2 == 0 {
+                // Different origins too.
+                let d = rays[0].dir();
+                rays = std::array::from_fn(|i| {
+                    Ray::new(rays[i].origin() + Vec3::splat(f() * 0.3), d, f().abs(), 1e3)
+                });
+            }
+            let p = Packet8::new(&rays).expect("one octant and axis order");
+            let fr = p.frustum.expect("finite directions");
+            let boxes: Vec<Aabb> = (0..8)
+                .map(|k| {
+                    let q = Vec3::new(f(), f(), f()) * 4.0;
+                    let e = Vec3::new(f().abs(), f().abs(), f().abs()) * [0.0, 0.2, 2.0][k % 3];
+                    match k {
+                        6 => Aabb::EMPTY,
+                        7 if n % 5 == 0 => Aabb::new(q - Vec3::splat(f32::INFINITY), q),
+                        _ => Aabb::new(q, q + e),
+                    }
+                })
+                .collect();
+            let node = Node8::from_boxes(&boxes);
+            let (min, max) = (node.rows(false), node.rows(true));
+            let bound: [f32; LANES] = std::array::from_fn(|_| f().abs() * 6.0);
+            let b = bound.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+            let mut kept = None;
+            for simd in [true, false] {
+                crate::set_simd_enabled(simd);
+                let m = if simd && cfg!(target_arch = "x86_64") {
+                    node.frustum(&fr, p.neg, b)
+                } else {
+                    frustum(&fr, p.neg, &min, &max, b)
+                };
+                crate::set_simd_enabled(true);
+                assert!(
+                    kept.is_none_or(|k| k == m),
+                    "case {n}: kernel and loop differ"
+                );
+                kept = Some(m);
+            }
+            let kept = kept.unwrap_or_default();
+            for (c, bx) in boxes.iter().enumerate() {
+                let (lanes, _) = slab(&p, bx.min.to_array(), bx.max.to_array(), &bound);
+                if lanes != 0 {
+                    assert!(
+                        kept >> c & 1 == 1,
+                        "case {n}: box {c} entered by {lanes:b} culled"
+                    );
+                } else if kept >> c & 1 == 0 {
+                    culled += 1;
+                } else {
+                    missed += 1;
+                }
+            }
+        }
+        assert!(
+            culled > 4 * missed,
+            "culled {culled}, kept {missed} boxes no lane enters"
+        );
     }
 
     /// Each lane's triangle test gives the scalar test's hit, bit for bit,

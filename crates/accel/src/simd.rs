@@ -201,6 +201,59 @@ unsafe fn packet_slab8_avx(
     _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(e, x)) as u32
 }
 
+/// [`crate::packet::frustum`] of an 8-wide node's boxes in AVX, one box a
+/// lane: the same operations in the same order, so the same bits (a test
+/// compares them). Panics without AVX2.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) fn frustum8<const W: usize>(
+    n: &WideNode<W>,
+    f: &crate::packet::Frustum,
+    neg: [bool; 3],
+    bound: f32,
+) -> u32 {
+    assert!(W == 8 && cpu_has_avx2());
+    // SAFETY: every row holds W == 8 floats, and the CPU has AVX2
+    // (both asserted).
+    unsafe { frustum8_avx(f, neg, n.min_rows(), n.max_rows(), bound) }
+}
+
+/// # Safety
+/// The CPU must have AVX.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn frustum8_avx(
+    f: &crate::packet::Frustum,
+    neg: [bool; 3],
+    min: [*const f32; 3],
+    max: [*const f32; 3],
+    bound: f32,
+) -> u32 {
+    use std::arch::x86_64::*;
+    let pad = _mm256_set1_ps(raymesh_geometry::ROBUST_EXIT);
+    let mut e = _mm256_set1_ps(f.tmin);
+    let mut x = _mm256_set1_ps(bound);
+    for a in (0..3).rev() {
+        let (near, far) = if neg[a] {
+            (max[a], min[a])
+        } else {
+            (min[a], max[a])
+        };
+        let (i0, i1) = (_mm256_set1_ps(f.inv[a][0]), _mm256_set1_ps(f.inv[a][1]));
+        let d = _mm256_sub_ps(_mm256_loadu_ps(near), _mm256_set1_ps(f.near_origin[a]));
+        let lo = _mm256_min_ps(_mm256_mul_ps(d, i0), _mm256_mul_ps(d, i1));
+        let d = _mm256_sub_ps(_mm256_loadu_ps(far), _mm256_set1_ps(f.far_origin[a]));
+        let hi = _mm256_mul_ps(
+            _mm256_max_ps(_mm256_mul_ps(d, i0), _mm256_mul_ps(d, i1)),
+            pad,
+        );
+        e = _mm256_max_ps(lo, e);
+        x = _mm256_min_ps(hi, x);
+    }
+    _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(e, x)) as u32
+}
+
 /// A bit per lane where `a <= b` (false for NaN), in AVX: what
 /// [`crate::packet::le_mask`]'s portable loop gives. Panics without AVX2.
 #[cfg(target_arch = "x86_64")]

@@ -8,7 +8,7 @@
 //! has AVX2, and the same plain loops elsewhere.
 
 use super::{each_prim, Bvh};
-use crate::packet::{self, Packet8, LANES};
+use crate::packet::{self, Frustum, Packet8, LANES};
 use crate::prims::BLOCK;
 use crate::simd;
 use crate::{AccelStats, Leaf, RayCounter};
@@ -110,6 +110,27 @@ impl<const W: usize> WideNode<W> {
             return (mask, t);
         }
         (slab_scalar(self, ray, bound, &mut t), t)
+    }
+
+    /// The rows of lower (`upper == false`) or upper bounds, by axis.
+    #[cfg(test)]
+    pub(crate) fn rows(&self, upper: bool) -> [[f32; W]; 3] {
+        if upper {
+            self.max
+        } else {
+            self.min
+        }
+    }
+
+    /// [`crate::packet::frustum`] of this node's boxes, with the AVX
+    /// kernel for 8-wide nodes where the CPU has it (the same bits).
+    #[inline(always)]
+    pub(crate) fn frustum(&self, f: &Frustum, neg: [bool; 3], bound: f32) -> u32 {
+        #[cfg(target_arch = "x86_64")]
+        if W == 8 && simd::has_avx2() {
+            return simd::frustum8(self, f, neg, bound);
+        }
+        packet::frustum(f, neg, &self.min, &self.max, bound)
     }
 
     fn child_box(&self, i: usize) -> Aabb {
@@ -455,12 +476,26 @@ impl<const W: usize> WideBvh<W> {
                     leaf(cur.child, cur.count, lanes, tmax);
                 } else {
                     let n = &self.nodes[cur.child as usize];
+                    // The children some lane may enter, by one interval
+                    // test for the packet; then each lane's own test.
+                    let keep = match &p.frustum {
+                        Some(f) => {
+                            let b = (0..LANES)
+                                .filter(|&i| lanes >> i & 1 != 0)
+                                .fold(f32::NEG_INFINITY, |b, i| max_ns(bound[i], b));
+                            n.frustum(f, p.neg(), b)
+                        }
+                        None => u32::MAX,
+                    };
                     // Entered children, farthest first.
                     let mut hits = [(0.0f32, PacketEntry::NONE); W];
                     let mut h = 0;
                     for c in 0..W {
                         if !n.is_used(c) {
                             break;
+                        }
+                        if keep >> c & 1 == 0 {
+                            continue;
                         }
                         let min = [n.min[0][c], n.min[1][c], n.min[2][c]];
                         let max = [n.max[0][c], n.max[1][c], n.max[2][c]];
