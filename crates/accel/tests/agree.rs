@@ -439,6 +439,36 @@ fn instances_agree_with_brute_top_level() {
     .is_err());
 }
 
+/// An object placed by the identity answers what the object alone does
+/// (the ray is carried over as it is, with no new `Ray` made).
+#[test]
+fn identity_instances_are_the_object() {
+    let m = load("elephant-with-holes.off");
+    let rays = mesh_rays(&m, 300, 11);
+    for kind in [AccelKind::Bvh8, AccelKind::Grid] {
+        let alone = Scene::from_mesh(&m, kind);
+        let placed = Instances::build(
+            vec![alone.clone()],
+            &[Instance {
+                object: 0,
+                transform: Mat4::IDENTITY,
+            }],
+            AccelKind::BvhBinned,
+        )
+        .unwrap();
+        let mut hits = 0;
+        for r in &rays {
+            let (a, b) = (alone.intersect(r), placed.intersect(r));
+            let bare =
+                |h: Option<Hit>| h.map(|h| (h.prim, h.t.to_bits(), h.u.to_bits(), h.v.to_bits()));
+            assert_eq!(bare(a), bare(b), "{kind}: {r:?}");
+            assert_eq!(alone.occluded(r), placed.occluded(r), "{kind}: {r:?}");
+            hits += usize::from(a.is_some());
+        }
+        assert!(hits > rays.len() / 10);
+    }
+}
+
 #[test]
 fn stats_are_sane() {
     let m = load("elephant-with-holes.off");
