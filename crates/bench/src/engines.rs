@@ -109,15 +109,16 @@ impl Engine for Raymesh {
         Some(self.scene.stats().bytes + self.scene.prims().bytes())
     }
     fn trace(&self, rays: &[[f32; 8]], any: bool, run: &Runner) -> (f64, Vec<Answer>) {
-        let rays: Vec<_> = rays
-            .iter()
-            .copied()
-            .map(raymesh::workload::unpack_ray)
-            .collect();
+        // Each engine makes its rays inside the timed pass, as Embree must
+        // (its per-ray set-up happens inside its calls): `Ray::new`'s
+        // reciprocal and shear are part of what a query costs.
+        let ray = |r: &[f32; 8]| raymesh::workload::unpack_ray(*r);
         if any {
-            run.run(&rays, |r| self.scene.occluded(r).then_some((0.0, 0)))
+            run.run(rays, |r| self.scene.occluded(&ray(r)).then_some((0.0, 0)))
         } else {
-            run.run(&rays, |r| self.scene.intersect(r).map(|h| (h.t, h.prim)))
+            run.run(rays, |r| {
+                self.scene.intersect(&ray(r)).map(|h| (h.t, h.prim))
+            })
         }
     }
 }
@@ -178,29 +179,26 @@ impl Engine for Obvhs {
     }
     fn trace(&self, rays: &[[f32; 8]], any: bool, run: &Runner) -> (f64, Vec<Answer>) {
         use glam::Vec3A;
-        let rays: Vec<obvhs::ray::Ray> = rays
-            .iter()
-            .map(|r| {
-                obvhs::ray::Ray::new(
-                    Vec3A::new(r[0], r[1], r[2]),
-                    Vec3A::new(r[4], r[5], r[6]),
-                    r[3],
-                    r[7],
-                )
-            })
-            .collect();
+        let ray = |r: &[f32; 8]| {
+            obvhs::ray::Ray::new(
+                Vec3A::new(r[0], r[1], r[2]),
+                Vec3A::new(r[4], r[5], r[6]),
+                r[3],
+                r[7],
+            )
+        };
         if any {
-            run.run(&rays, |r| {
+            run.run(rays, |r| {
                 let miss = self
                     .bvh
-                    .ray_traverse_miss(*r, |ray, id| self.tris[id].intersect(ray));
+                    .ray_traverse_miss(ray(r), |ray, id| self.tris[id].intersect(ray));
                 (!miss).then_some((0.0, 0))
             })
         } else {
-            run.run(&rays, |r| {
+            run.run(rays, |r| {
                 let mut hit = obvhs::ray::RayHit::none();
                 self.bvh
-                    .ray_traverse(*r, &mut hit, |ray, id| self.tris[id].intersect(ray))
+                    .ray_traverse(ray(r), &mut hit, |ray, id| self.tris[id].intersect(ray))
                     .then(|| {
                         let prim = self.bvh.primitive_indices[hit.primitive_id as usize];
                         (hit.t, prim)
@@ -328,15 +326,15 @@ impl Engine for BvhCrate {
         )
     }
     fn trace(&self, rays: &[[f32; 8]], any: bool, run: &Runner) -> (f64, Vec<Answer>) {
-        let rays: Vec<(bvh::ray::Ray<f32, 3>, f32, f32)> =
-            rays.iter().map(|r| (Self::ray(r), r[3], r[7])).collect();
+        let make = |r: &[f32; 8]| (Self::ray(r), r[3], r[7]);
         let test = |ray: &bvh::ray::Ray<f32, 3>, tri: &BvhTri, tmax: f32| {
             let o = Vec3::new(ray.origin.x, ray.origin.y, ray.origin.z);
             let d = Vec3::new(ray.direction.x, ray.direction.y, ray.direction.z);
             moller_trumbore(o, d, &tri.p, 0.0, tmax)
         };
         if any {
-            run.run(&rays, |(ray, tmin, tmax)| {
+            run.run(rays, |r| {
+                let (ray, tmin, tmax) = &make(r);
                 let limit = tmax - tmin;
                 self.bvh
                     .traverse_iterator(ray, &self.shapes)
@@ -345,7 +343,8 @@ impl Engine for BvhCrate {
             })
         } else {
             use bvh::aabb::Bounded;
-            run.run(&rays, |(ray, tmin, tmax)| {
+            run.run(rays, |r| {
+                let (ray, tmin, tmax) = &make(r);
                 let mut best = tmax - tmin;
                 let mut hit = None;
                 for tri in self.bvh.nearest_traverse_iterator(ray, &self.shapes) {
@@ -402,22 +401,21 @@ impl Engine for Parry {
         use parry3d::query::{Ray, RayCast};
         use parry3d::shape::CompositeShapeRef;
         // parry's rays start at t = 0: move the origin to tmin.
-        let rays: Vec<(Ray, f32, f32)> = rays
-            .iter()
-            .map(|r| {
-                let d = parry3d::math::Vector::new(r[4], r[5], r[6]);
-                let o = parry3d::math::Vector::new(r[0], r[1], r[2]) + d * r[3];
-                (Ray::new(o, d), r[3], r[7])
-            })
-            .collect();
+        let make = |r: &[f32; 8]| {
+            let d = parry3d::math::Vector::new(r[4], r[5], r[6]);
+            let o = parry3d::math::Vector::new(r[0], r[1], r[2]) + d * r[3];
+            (Ray::new(o, d), r[3], r[7])
+        };
         if any {
-            run.run(&rays, |(ray, tmin, tmax)| {
+            run.run(rays, |r| {
+                let (ray, tmin, tmax) = &make(r);
                 self.mesh
                     .intersects_local_ray(ray, tmax - tmin)
                     .then_some((0.0, 0))
             })
         } else {
-            run.run(&rays, |(ray, tmin, tmax)| {
+            run.run(rays, |r| {
+                let (ray, tmin, tmax) = &make(r);
                 CompositeShapeRef(&self.mesh)
                     .cast_local_ray(ray, tmax - tmin, true)
                     .map(|(prim, t)| (t + tmin, prim))
