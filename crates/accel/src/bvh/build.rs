@@ -78,13 +78,57 @@ struct Ctx<'a> {
 }
 
 /// A subtree as the parallel recursion returns it, flattened once at the end.
-enum Subtree {
-    /// Built on one thread, laid out as a whole tree is: `nodes[0]` is the
-    /// root, `nodes[1]` unused, sibling pairs from 2 on, and child indices
-    /// point into this vector.
-    Flat(Vec<Node>),
+enum Subtree<'a> {
+    /// Built on one thread, laid out as a whole tree is: node 0 is the
+    /// root, node 1 unused, sibling pairs from 2 on, and child indices
+    /// point into this region.
+    Flat(Region<'a>),
     /// A root whose two subtrees were built in parallel.
-    Split(Node, Box<Subtree>, Box<Subtree>),
+    Split(Node, Box<Subtree<'a>>, Box<Subtree<'a>>),
+}
+
+/// The node slots of a subtree built on one thread, filled from the front:
+/// a region of the build's one node buffer. A subtree over `n` primitives
+/// gets `2n` slots, as many as its nodes can be (its root, the unused slot
+/// beside it, and a pair per split, of which there are at most `n - 1`),
+/// and its two halves split its region as they split its primitives.
+///
+/// One buffer, not a vector per subtree: freed at once, it goes back to
+/// the system, where thousands of small vectors stayed in the allocator's
+/// arenas as free memory the process still holds (a 10M-triangle render
+/// then peaked 100 MB higher, while it gathered the triangle rows).
+struct Region<'a> {
+    nodes: &'a mut [Node],
+    len: usize,
+}
+
+impl Region<'_> {
+    fn push(&mut self, n: Node) {
+        self.nodes[self.len] = n;
+        self.len += 1;
+    }
+
+    fn len(&self) -> usize {
+        self.len
+    }
+
+    /// The nodes written so far.
+    fn nodes(&self) -> &[Node] {
+        &self.nodes[..self.len]
+    }
+}
+
+impl std::ops::Index<usize> for Region<'_> {
+    type Output = Node;
+    fn index(&self, i: usize) -> &Node {
+        &self.nodes()[i]
+    }
+}
+
+impl std::ops::IndexMut<usize> for Region<'_> {
+    fn index_mut(&mut self, i: usize) -> &mut Node {
+        &mut self.nodes[..self.len][i]
+    }
 }
 
 /// A bin of the binned builder: the box of its primitives (in SIMD
@@ -190,7 +234,9 @@ impl BvhBuilder {
             block: config.leaf_block.unwrap_or(1).max(1),
         };
         let (bounds, cbounds) = ctx.bounds_pair(&refs);
-        let tree = ctx.subtree(&mut refs, 0, 1, bounds, cbounds);
+        // Zeroed by the system, so only the slots written become resident.
+        let mut slots: Vec<Node> = bytemuck::zeroed_vec(2 * n);
+        let tree = ctx.subtree(&mut refs, &mut slots, 0, 1, bounds, cbounds);
         // The references (32 bytes a primitive) go before the tree is
         // flattened, so that they never coexist with both of its copies.
         let prim_ids = refs.par_iter().map(|r| r.id).collect();
@@ -198,11 +244,12 @@ impl BvhBuilder {
         let mut pairs = Vec::with_capacity(tree.pairs());
         pairs.push(NodePair([Node::new(Aabb::EMPTY); 2]));
         pairs[0].0[0] = place(tree, &mut pairs);
+        drop(slots);
         Bvh { pairs, prim_ids }
     }
 }
 
-impl Subtree {
+impl Subtree<'_> {
     /// Sibling pairs of the whole tree once placed, the root's included.
     fn pairs(&self) -> usize {
         match self {
@@ -216,9 +263,10 @@ impl Subtree {
 /// order a one-thread build makes them (each pair, then the left subtree,
 /// then the right), and returns the root with its child index pointing
 /// into `out` (node `i` is `out[i / 2].0[i % 2]`).
-fn place(tree: Subtree, out: &mut Vec<NodePair>) -> Node {
+fn place(tree: Subtree<'_>, out: &mut Vec<NodePair>) -> Node {
     match tree {
-        Subtree::Flat(nodes) => {
+        Subtree::Flat(region) => {
+            let nodes = region.nodes();
             // Pairs start at node 2 in `nodes` and at node `2 * out.len()` in `out`.
             let base = 2 * out.len() as u32;
             let shift = |mut n: Node| {
@@ -272,16 +320,21 @@ impl Ctx<'_> {
 
     /// Builds the subtree over `ids` (which start at `offset` in the
     /// permutation), splitting large nodes' children across rayon tasks.
-    fn subtree(
+    fn subtree<'s>(
         &self,
         ids: &mut [PrimRef],
+        slots: &'s mut [Node],
         offset: u32,
         depth: usize,
         bounds: Aabb,
         cbounds: Aabb,
-    ) -> Subtree {
+    ) -> Subtree<'s> {
+        debug_assert!(slots.len() >= 2 * ids.len());
+        let mut nodes = Region {
+            nodes: slots,
+            len: 0,
+        };
         if ids.len() < self.par_subtree {
-            let mut nodes = Vec::with_capacity(2 * ids.len() / self.config.max_leaf.max(1) + 2);
             nodes.push(Node::new(Aabb::EMPTY));
             nodes.push(Node::new(Aabb::EMPTY));
             self.build(
@@ -301,19 +354,23 @@ impl Ctx<'_> {
             None => {
                 root.index = offset;
                 root.count = ids.len() as u32;
-                Subtree::Flat(vec![root, Node::new(Aabb::EMPTY)])
+                nodes.push(root);
+                nodes.push(Node::new(Aabb::EMPTY));
+                Subtree::Flat(nodes)
             }
             Some(mid) => {
                 let (left, right) = ids.split_at_mut(mid);
+                let (lslots, rslots) = nodes.nodes.split_at_mut(2 * mid);
                 // Each side bounds its own primitives, on its own task.
                 let (l, r) = rayon::join(
                     || {
                         let (b, c) = self.bounds_pair(left);
-                        self.subtree(left, offset, depth + 1, b, c)
+                        self.subtree(left, lslots, offset, depth + 1, b, c)
                     },
                     || {
                         let (b, c) = self.bounds_pair(right);
-                        self.subtree(right, offset + mid as u32, depth + 1, b, c)
+                        let o = offset + mid as u32;
+                        self.subtree(right, rslots, o, depth + 1, b, c)
                     },
                 );
                 Subtree::Split(root, Box::new(l), Box::new(r))
@@ -352,7 +409,7 @@ impl Ctx<'_> {
     #[allow(clippy::too_many_arguments)]
     fn build(
         &self,
-        nodes: &mut Vec<Node>,
+        nodes: &mut Region<'_>,
         bins: &mut Bins,
         node: usize,
         ids: &mut [PrimRef],
