@@ -149,7 +149,7 @@ unsafe fn slab8_avx(
 /// The slab test of one box against the eight rays of a packet in AVX
 /// (one ray a lane, the box's `near` and `far` planes shared): the same
 /// entry distances and mask as [`crate::packet::slab_lanes`], bit for bit
-/// (a test below compares them). Panics without AVX2.
+/// (`packet.rs`'s tests compare them). Panics without AVX2.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 pub(crate) fn packet_slab8(
@@ -202,8 +202,8 @@ unsafe fn packet_slab8_avx(
 }
 
 /// [`crate::packet::frustum`] of an 8-wide node's boxes in AVX, one box a
-/// lane: the same operations in the same order, so the same bits (a test
-/// compares them). Panics without AVX2.
+/// lane: the same operations in the same order, so the same bits
+/// (`packet.rs`'s tests compare them). Panics without AVX2.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 pub(crate) fn frustum8<const W: usize>(

@@ -235,7 +235,7 @@ mod tests {
     }
 
     proptest! {
-        #![proptest_config(ProptestConfig::with_cases(20_000))]
+        #![proptest_config(ProptestConfig { cases: 20_000, failure_persistence: None, ..ProptestConfig::default() })]
         /// The constructor gives the reference's fields bit for bit, on
         /// any input: zeros of both signs, ties between axes, infinities,
         /// NaN, huge and tiny values.
