@@ -40,7 +40,11 @@ impl Grid {
     /// Builds a grid of about `density × N` cells shaped like the bounds.
     #[must_use]
     pub fn build(boxes: &[Aabb], config: &BuildConfig) -> Self {
-        let bounds = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(*b));
+        // In parallel: unions are exact, so any order gives the same box.
+        let bounds = boxes
+            .par_iter()
+            .copied()
+            .reduce(|| Aabb::EMPTY, Aabb::union);
         let n = boxes.len();
         if n == 0 || bounds.is_empty() {
             return Self {

@@ -88,7 +88,10 @@ impl<P: Primitives> Scene<P> {
                     .into_par_iter()
                     .map(|i| prims.bounds(i))
                     .collect();
-                let b = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(*b));
+                let b = boxes
+                    .par_iter()
+                    .copied()
+                    .reduce(|| Aabb::EMPTY, Aabb::union);
                 (Accel::build(kind, &boxes, config), b)
             }
         };
