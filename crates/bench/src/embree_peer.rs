@@ -7,11 +7,11 @@
 #![allow(unsafe_code)]
 
 use embree::sys::{
-    rtcAttachGeometry, rtcCommitGeometry, rtcCommitScene, rtcIntersect1, rtcNewDevice,
-    rtcNewGeometry, rtcNewScene, rtcOccluded1, rtcReleaseDevice, rtcReleaseGeometry,
+    rtcAttachGeometry, rtcCommitGeometry, rtcCommitScene, rtcIntersect1, rtcIntersect8,
+    rtcNewDevice, rtcNewGeometry, rtcNewScene, rtcOccluded1, rtcReleaseDevice, rtcReleaseGeometry,
     rtcReleaseScene, rtcSetDeviceMemoryMonitorFunction, rtcSetSceneBuildQuality,
     rtcSetSharedGeometryBuffer, RTCBufferType, RTCBuildQuality, RTCDevice, RTCFormat,
-    RTCGeometryType, RTCHit, RTCRay, RTCRayHit, RTCScene,
+    RTCGeometryType, RTCHit, RTCHit8, RTCRay, RTCRay8, RTCRayHit, RTCRayHit8, RTCScene,
 };
 use raymesh_geometry::Vec3;
 use std::sync::atomic::{AtomicI64, Ordering};
@@ -135,6 +135,47 @@ impl EmbreeScene {
         (rh.hit.geomID != u32::MAX).then_some((rh.ray.tfar, rh.hit.primID, rh.hit.u, rh.hit.v))
     }
 
+    /// Closest hits of eight rays as one packet (`rtcIntersect8`, with the
+    /// coherent-rays hint: the packet mode is for camera rays).
+    pub fn intersect8(&self, r: &[[f32; 8]; 8]) -> [Option<(f32, u32)>; 8] {
+        let mut ctx = embree::IntersectContext::coherent();
+        let lane = |k: usize| std::array::from_fn(|i| r[i][k]);
+        let mut rh = RTCRayHit8 {
+            ray: RTCRay8 {
+                org_x: lane(0),
+                org_y: lane(1),
+                org_z: lane(2),
+                tnear: lane(3),
+                dir_x: lane(4),
+                dir_y: lane(5),
+                dir_z: lane(6),
+                time: [0.0; 8],
+                tfar: lane(7),
+                mask: [u32::MAX; 8],
+                id: [0; 8],
+                flags: [0; 8],
+            },
+            hit: RTCHit8 {
+                Ng_x: [0.0; 8],
+                Ng_y: [0.0; 8],
+                Ng_z: [0.0; 8],
+                u: [0.0; 8],
+                v: [0.0; 8],
+                primID: [u32::MAX; 8],
+                geomID: [u32::MAX; 8],
+                instID: [[u32::MAX; 8]],
+            },
+        };
+        let valid = [-1i32; 8];
+        // SAFETY: the scene is committed and alive; `valid` holds 8 ints
+        // and `rh` is an 8-ray packet with the 32-byte alignment its type
+        // declares, both valid for the call.
+        unsafe { rtcIntersect8(valid.as_ptr(), self.scene, &mut ctx, &mut rh) };
+        std::array::from_fn(|i| {
+            (rh.hit.geomID[i] != u32::MAX).then_some((rh.ray.tfar[i], rh.hit.primID[i]))
+        })
+    }
+
     /// Any hit.
     pub fn occluded(&self, r: &[f32; 8]) -> bool {
         let mut ctx = embree::IntersectContext::incoherent();
@@ -180,6 +221,12 @@ impl crate::engines::Engine for EmbreeScene {
     ) -> (f64, Vec<crate::engines::Answer>) {
         if any {
             run.run(rays, |r| self.occluded(r).then_some((0.0, 0)))
+        } else if run.packets {
+            run.run8(
+                rays,
+                |p| self.intersect8(p),
+                |r| self.intersect(r).map(|(t, p, _, _)| (t, p)),
+            )
         } else {
             run.run(rays, |r| self.intersect(r).map(|(t, p, _, _)| (t, p)))
         }

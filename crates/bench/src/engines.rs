@@ -23,9 +23,41 @@ pub struct Runner<'a> {
     pub pool: &'a ThreadPool,
     /// Passes; the best is reported.
     pub repeat: u32,
+    /// Closest hits eight consecutive rays at a time, for the engines that
+    /// trace packets (raymesh's `Scene::intersect8`, Embree's
+    /// `rtcIntersect8`); the others trace one ray at a time regardless.
+    pub packets: bool,
 }
 
 impl Runner<'_> {
+    /// [`Self::run`] with each eight consecutive rays given to `eight`
+    /// together (within 1,024-ray chunks; a chunk's last few rays go to
+    /// `one`), answers in the rays' order.
+    pub fn run8<R: Sync>(
+        &self,
+        rays: &[R],
+        eight: impl Fn(&[R; 8]) -> [Answer; 8] + Sync,
+        one: impl Fn(&R) -> Answer + Sync,
+    ) -> (f64, Vec<Answer>) {
+        let mut best = f64::INFINITY;
+        let mut out = Vec::new();
+        for _ in 0..self.repeat.max(1) {
+            let start = Instant::now();
+            out = self.pool.install(|| {
+                rays.par_chunks(1024)
+                    .flat_map_iter(|chunk| {
+                        chunk.chunks(8).flat_map(|c| match <&[R; 8]>::try_from(c) {
+                            Ok(p) => eight(p).to_vec(),
+                            Err(_) => c.iter().map(&one).collect(),
+                        })
+                    })
+                    .collect()
+            });
+            best = best.min(start.elapsed().as_secs_f64());
+        }
+        (best, out)
+    }
+
     /// Best time of `repeat` passes of `f` over every ray (1,024-ray
     /// chunks on the pool), in seconds, and the last pass's answers.
     pub fn run<R: Sync>(&self, rays: &[R], f: impl Fn(&R) -> Answer + Sync) -> (f64, Vec<Answer>) {
@@ -113,6 +145,14 @@ impl Engine for Raymesh {
         // (its per-ray set-up happens inside its calls): `Ray::new`'s
         // reciprocal and shear are part of what a query costs.
         let ray = |r: &[f32; 8]| raymesh::workload::unpack_ray(*r);
+        if run.packets && !any {
+            let hit = |h: Option<raymesh_accel::Hit>| h.map(|h| (h.t, h.prim));
+            return run.run8(
+                rays,
+                |p| self.scene.intersect8(&p.each_ref().map(ray)).map(hit),
+                |r| hit(self.scene.intersect(&ray(r))),
+            );
+        }
         if any {
             run.run(rays, |r| self.scene.occluded(&ray(r)).then_some((0.0, 0)))
         } else {
@@ -453,7 +493,20 @@ mod tests {
                 let run = Runner {
                     pool: &pool,
                     repeat: 1,
+                    packets: false,
                 };
+                // raymesh's packet mode gives its one-ray answers exactly,
+                // camera rays (coherent packets) included.
+                let packets = Runner {
+                    packets: true,
+                    ..run
+                };
+                for w in [Workload::Primary, Workload::Random] {
+                    let rays = make_rays(w, &scene, 48, 3);
+                    let (_, want) = reference.trace(&rays, false, &run);
+                    let (_, got) = reference.trace(&rays, false, &packets);
+                    assert_eq!(got, want, "{file}: {w:?} in packets, {threads} threads");
+                }
                 for w in [Workload::Random, Workload::Diffuse, Workload::Shadow] {
                     let mut rays = make_rays(w, &scene, 48, 3);
                     // Clip every other random ray to a window around the

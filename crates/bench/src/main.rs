@@ -61,6 +61,11 @@ struct Args {
     /// Draw Mrays/s per engine as a bar chart (PNG, or SVG by extension).
     #[arg(long)]
     chart: Option<PathBuf>,
+    /// Closest hits eight consecutive rays at a time where the engine has
+    /// packets (raymesh `Scene::intersect8`, Embree `rtcIntersect8`); the
+    /// Rust peers and any-hit queries stay one ray at a time.
+    #[arg(long)]
+    packets: bool,
 }
 
 /// One engine's build on one mesh.
@@ -240,6 +245,7 @@ fn main() -> Result<()> {
             let run = Runner {
                 pool: &pool,
                 repeat: args.repeat,
+                packets: args.packets,
             };
             // The reference's answers per (workload, query), then each
             // engine in turn: built, traced, compared, dropped.
