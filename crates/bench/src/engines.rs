@@ -31,8 +31,8 @@ pub struct Runner<'a> {
 
 impl Runner<'_> {
     /// [`Self::run`] with each eight consecutive rays given to `eight`
-    /// together (within 1,024-ray chunks; a chunk's last few rays go to
-    /// `one`), answers in the rays' order.
+    /// together (the last few, if the count is not a multiple of eight, to
+    /// `one`), answers in the rays' order; tasks take 1,024 rays at least.
     pub fn run8<R: Sync>(
         &self,
         rays: &[R],
@@ -44,14 +44,19 @@ impl Runner<'_> {
         for _ in 0..self.repeat.max(1) {
             let start = Instant::now();
             out = self.pool.install(|| {
-                rays.par_chunks(1024)
-                    .flat_map_iter(|chunk| {
-                        chunk.chunks(8).flat_map(|c| match <&[R; 8]>::try_from(c) {
-                            Ok(p) => eight(p).to_vec(),
-                            Err(_) => c.iter().map(&one).collect(),
-                        })
-                    })
-                    .collect()
+                let mut out: Vec<Answer> = vec![None; rays.len()];
+                out.par_chunks_mut(8)
+                    .zip(rays.par_chunks(8))
+                    .with_min_len(128)
+                    .for_each(|(out, c)| match <&[R; 8]>::try_from(c) {
+                        Ok(p) => out.copy_from_slice(&eight(p)),
+                        Err(_) => {
+                            for (o, r) in out.iter_mut().zip(c) {
+                                *o = one(r);
+                            }
+                        }
+                    });
+                out
             });
             best = best.min(start.elapsed().as_secs_f64());
         }
