@@ -166,11 +166,15 @@ impl EmbreeScene {
                 instID: [[u32::MAX; 8]],
             },
         };
-        let valid = [-1i32; 8];
+        /// The valid mask, aligned as the packet is (Embree may load it
+        /// with aligned vector loads).
+        #[repr(C, align(32))]
+        struct Valid([i32; 8]);
+        let valid = Valid([-1; 8]);
         // SAFETY: the scene is committed and alive; `valid` holds 8 ints
-        // and `rh` is an 8-ray packet with the 32-byte alignment its type
-        // declares, both valid for the call.
-        unsafe { rtcIntersect8(valid.as_ptr(), self.scene, &mut ctx, &mut rh) };
+        // and `rh` is an 8-ray packet, both with the 32-byte alignment
+        // rtcIntersect8 asks of packets, and valid for the call.
+        unsafe { rtcIntersect8(valid.0.as_ptr(), self.scene, &mut ctx, &mut rh) };
         std::array::from_fn(|i| {
             (rh.hit.geomID[i] != u32::MAX).then_some((rh.ray.tfar[i], rh.hit.primID[i]))
         })
