@@ -6,7 +6,9 @@
 use proptest::prelude::*;
 use raymesh_accel::*;
 use raymesh_geometry::{Mat4, Sphere};
-use std::path::PathBuf;
+
+mod common;
+use common::{load, tri_mesh};
 
 const KINDS: [AccelKind; 8] = [
     AccelKind::Aabb,
@@ -95,14 +97,6 @@ fn check_mesh(m: &TriangleMesh, rays: &[Ray]) -> usize {
     hits
 }
 
-fn tri_mesh(tris: &[[Vec3; 3]]) -> TriangleMesh {
-    let positions: Vec<Vec3> = tris.iter().flatten().copied().collect();
-    let triangles = (0..tris.len() as u32)
-        .map(|i| [3 * i, 3 * i + 1, 3 * i + 2])
-        .collect();
-    TriangleMesh::new(positions, triangles)
-}
-
 /// Coordinates on a coarse lattice (shared edges, axis-aligned and coplanar
 /// triangles, rays through vertices) or anywhere.
 fn coord() -> impl Strategy<Value = f32> + Clone {
@@ -183,17 +177,6 @@ proptest! {
         mix.extend(tris.into_iter().map(Shape::Triangle));
         check_all(&Shapes(mix), &rays);
     }
-}
-
-fn data(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../tests/data")
-        .join(name)
-}
-
-fn load(name: &str) -> TriangleMesh {
-    let m = raymesh_mesh::io::read_mesh(data(name)).unwrap();
-    TriangleMesh::new(m.positions.clone(), m.triangles())
 }
 
 /// Deterministic pseudo-random numbers for the real-mesh tests.

@@ -7,7 +7,9 @@
 use proptest::prelude::*;
 use raymesh_accel::*;
 use raymesh_geometry::{Mat4, Sphere};
-use std::path::PathBuf;
+
+mod common;
+use common::{load, tri_mesh};
 
 /// The structures: the wide BVHs take packets, the others fall back.
 const KINDS: [AccelKind; 5] = [
@@ -85,14 +87,6 @@ fn camera_rays(o: Vec3, aims: &[Vec3], spread: f32, targets: &[Vec3]) -> Vec<Ray
     rays
 }
 
-fn tri_mesh(tris: &[[Vec3; 3]]) -> TriangleMesh {
-    let positions: Vec<Vec3> = tris.iter().flatten().copied().collect();
-    let triangles = (0..tris.len() as u32)
-        .map(|i| [3 * i, 3 * i + 1, 3 * i + 2])
-        .collect();
-    TriangleMesh::new(positions, triangles)
-}
-
 fn point() -> impl Strategy<Value = Vec3> {
     (-2.0f32..2.0, -2.0f32..2.0, -2.0f32..2.0).prop_map(|(x, y, z)| Vec3::new(x, y, z))
 }
@@ -141,14 +135,6 @@ proptest! {
             check(&Scene::build(Shapes(mix), kind), &rays, "mix");
         }
     }
-}
-
-fn load(name: &str) -> TriangleMesh {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../tests/data")
-        .join(name);
-    let m = raymesh_mesh::io::read_mesh(path).unwrap();
-    TriangleMesh::new(m.positions.clone(), m.triangles())
 }
 
 /// A camera's packets over real meshes: nearly all of them coherent, so

@@ -5,15 +5,9 @@
 //! the kernels on.
 
 use raymesh_accel::*;
-use std::path::PathBuf;
 
-fn load(name: &str) -> TriangleMesh {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../tests/data")
-        .join(name);
-    let m = raymesh_mesh::io::read_mesh(path).unwrap();
-    TriangleMesh::new(m.positions.clone(), m.triangles())
-}
+mod common;
+use common::load;
 
 /// Hit as bits, so that `-0.0` and `0.0` differ and NaN compares.
 fn key(h: Option<Hit>) -> Option<(u32, u32, u32, u32)> {
