@@ -9,7 +9,7 @@
 //! fallback, without fused multiply-adds, so their results are identical.
 #![allow(unsafe_code)]
 
-use crate::bvh::{BoxRay, WideNode};
+use crate::bvh::{BoxRay, Bvh, NodePair, PairRay, WideNode};
 use crate::PrimHit;
 use raymesh_geometry::Ray;
 
@@ -144,6 +144,100 @@ unsafe fn slab8_avx(
     );
     _mm256_storeu_ps(t, e);
     _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(e, x)) as u32
+}
+
+/// [`Bvh::traverse_stream`]'s loop compiled with AVX2 and its pair test
+/// ([`pair_slab`]) inlined. A closure handed to [`with_avx2`] would do
+/// the same only if the compiler inlined it there, which it declines for
+/// a loop this size (the kernel then became a call per node, 40% slower
+/// than the one-ray walk); a `#[target_feature]` function inlines the
+/// `#[inline(always)]` loop for certain. Panics without AVX2.
+#[cfg(target_arch = "x86_64")]
+pub(crate) fn stream_loop_avx2(
+    bvh: &Bvh,
+    rays: &[Ray],
+    leaf: &mut impl FnMut(usize, u32, u32, f32) -> f32,
+) {
+    assert!(cpu_has_avx2());
+    // SAFETY: the CPU has AVX2 (asserted); the function has no other
+    // requirement.
+    unsafe { stream_loop_avx2_impl(bvh, rays, leaf) }
+}
+
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn stream_loop_avx2_impl(
+    bvh: &Bvh,
+    rays: &[Ray],
+    leaf: &mut impl FnMut(usize, u32, u32, f32) -> f32,
+) {
+    // SAFETY (of each call): this function runs only on CPUs with AVX2.
+    bvh.stream_loop::<{ crate::bvh::STREAM_LANES }>(rays, leaf, |p, r, b| unsafe {
+        pair_slab_avx(p, r, b)
+    });
+}
+
+/// The slab test of a binary BVH node's two children (one cache line) in
+/// AVX, one child a 128-bit half: the same entry distances and hits as
+/// [`crate::bvh::pair_slab_scalar`] (two [`raymesh_geometry::Aabb::slab`]s),
+/// bit for bit. Returns a bit per child entered (1 left, 2 right) and the
+/// two entry distances. Panics without AVX2. The stream loop calls the
+/// kernel unchecked (its AVX2 context is checked once); tests call this.
+#[cfg(all(target_arch = "x86_64", test))]
+#[inline(always)]
+pub(crate) fn pair_slab(pair: &NodePair, r: &PairRay, bound: f32) -> (u32, f32, f32) {
+    assert!(cpu_has_avx2());
+    // SAFETY: a node pair is 16 floats, 64-byte aligned; the ray's rows are
+    // 8 floats, 32-byte aligned; the CPU has AVX2 (asserted).
+    unsafe { pair_slab_avx(pair, r, bound) }
+}
+
+/// # Safety
+/// The CPU must have AVX.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn pair_slab_avx(pair: &NodePair, r: &PairRay, bound: f32) -> (u32, f32, f32) {
+    use std::arch::x86_64::*;
+    let p = std::ptr::from_ref(pair).cast::<f32>();
+    // Each node is min xyz, count, max xyz, index.
+    let (left, right) = (_mm256_load_ps(p), _mm256_load_ps(p.add(8)));
+    // Lanes 3 and 7 hold a node's count and index, whose bits read as
+    // floats are subnormal: zeroed, or every step's arithmetic on them
+    // takes the CPU's slow path for subnormal operands.
+    let axes = _mm256_castsi256_ps(_mm256_setr_epi32(-1, -1, -1, 0, -1, -1, -1, 0));
+    let min = _mm256_and_ps(_mm256_permute2f128_ps::<0x20>(left, right), axes);
+    let max = _mm256_and_ps(_mm256_permute2f128_ps::<0x31>(left, right), axes);
+    let neg = _mm256_load_ps(r.neg.as_ptr().cast());
+    let (near, far) = (
+        _mm256_blendv_ps(min, max, neg),
+        _mm256_blendv_ps(max, min, neg),
+    );
+    let o = _mm256_load_ps(r.origin.as_ptr());
+    let inv = _mm256_load_ps(r.inv_dir.as_ptr());
+    let tn = _mm256_mul_ps(_mm256_sub_ps(near, o), inv);
+    let tf = _mm256_mul_ps(
+        _mm256_mul_ps(_mm256_sub_ps(far, o), inv),
+        _mm256_set1_ps(raymesh_geometry::ROBUST_EXIT),
+    );
+    // z, then y, then x, into the accumulator: the scalar nesting.
+    // max_ps(a, b) is max_nan_second(a, b); min_ps likewise.
+    let mut e = _mm256_set1_ps(r.tmin);
+    let mut x = _mm256_set1_ps(bound);
+    e = _mm256_max_ps(_mm256_permute_ps::<0b1010_1010>(tn), e);
+    x = _mm256_min_ps(_mm256_permute_ps::<0b1010_1010>(tf), x);
+    e = _mm256_max_ps(_mm256_permute_ps::<0b0101_0101>(tn), e);
+    x = _mm256_min_ps(_mm256_permute_ps::<0b0101_0101>(tf), x);
+    e = _mm256_max_ps(_mm256_permute_ps::<0>(tn), e);
+    x = _mm256_min_ps(_mm256_permute_ps::<0>(tf), x);
+    let m = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(e, x)) as u32;
+    (
+        (m & 1) | (m >> 3 & 2),
+        _mm256_cvtss_f32(e),
+        _mm_cvtss_f32(_mm256_extractf128_ps::<1>(e)),
+    )
 }
 
 /// The slab test of one box against the eight rays of a packet in AVX
@@ -430,7 +524,7 @@ unsafe fn triangles8_avx(
 #[cfg(all(test, target_arch = "x86_64"))]
 mod tests {
     use super::*;
-    use crate::bvh::slab_scalar;
+    use crate::bvh::{slab_scalar, Node};
     use crate::test_util::{hard_coord, hard_vec3};
     use proptest::prelude::*;
     use raymesh_geometry::{Aabb, Ray, Vec3};
@@ -462,6 +556,34 @@ mod tests {
             for i in 0..8 {
                 prop_assert_eq!(ta[i].to_bits(), tb[i].to_bits(), "lane {}", i);
             }
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(4000))]
+        /// The pair kernel gives the bits of two scalar slab tests, in
+        /// every octant, on any boxes (empty ones too), whatever the count
+        /// and index fields hold (their bits read as floats are subnormal,
+        /// normal or NaN; the kernel must ignore them).
+        #[test]
+        fn avx_pair_slab_matches_scalar(
+            a in hard_vec3(), b in hard_vec3(), c in hard_vec3(), d in hard_vec3(),
+            o in hard_vec3(), dir in hard_vec3(),
+            tmin in hard_coord(), bound in hard_coord(),
+            fields in proptest::array::uniform4(any::<u32>()),
+        ) {
+            prop_assume!(cpu_has_avx2());
+            let mut pair = NodePair([Node::new(Aabb::new(a, b)), Node::new(Aabb::new(c, d))]);
+            (pair.0[0].count, pair.0[0].index) = (fields[0], fields[1]);
+            (pair.0[1].count, pair.0[1].index) = (fields[2], fields[3]);
+            let ray = Ray::new(o, dir, tmin.min(0.0), f32::INFINITY);
+            let mut r = PairRay::new(&ray);
+            r.set_tmin(tmin);
+            let (ma, la, ra) = pair_slab(&pair, &r, bound);
+            let (mb, lb, rb) = crate::bvh::pair_slab_scalar(&pair, &r, bound);
+            prop_assert_eq!(ma, mb);
+            prop_assert_eq!(la.to_bits(), lb.to_bits());
+            prop_assert_eq!(ra.to_bits(), rb.to_bits());
         }
     }
 

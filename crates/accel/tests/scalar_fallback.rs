@@ -2,7 +2,7 @@
 //! have the instructions: with the kernels switched off (a process-wide
 //! switch, so this file is its own test process), every BVH over
 //! [`Triangles`] still returns brute force's bits, and the same as with
-//! the kernels on.
+//! the kernels on, one ray at a time and as a stream.
 
 use raymesh_accel::*;
 
@@ -41,7 +41,12 @@ fn rays(m: &TriangleMesh, n: usize) -> Vec<Ray> {
 
 #[test]
 fn fallbacks_agree_with_brute_force_and_with_the_kernels() {
-    let kinds = [AccelKind::BvhBinned, AccelKind::Bvh4, AccelKind::Bvh8];
+    let kinds = [
+        AccelKind::BvhBinned,
+        AccelKind::BvhSweep,
+        AccelKind::Bvh4,
+        AccelKind::Bvh8,
+    ];
     for name in [
         "elephant-with-holes.off",
         "sphere.ply",
@@ -57,7 +62,21 @@ fn fallbacks_agree_with_brute_force_and_with_the_kernels() {
             let s = Scene::build(Triangles::from_mesh(&m), kind);
             for on in [true, false] {
                 set_simd_enabled(on);
+                let mut stream = vec![None; rays.len()];
+                s.intersect_stream(&rays, &mut stream);
+                let mut any = vec![None; rays.len()];
+                s.any_hit_stream(&rays, &mut any);
                 for (i, r) in rays.iter().enumerate() {
+                    assert_eq!(
+                        key(stream[i]),
+                        want[i],
+                        "{name} {kind} simd={on}: stream, ray {i} {r:?}"
+                    );
+                    assert_eq!(
+                        key(any[i]),
+                        key(s.any_hit(r)),
+                        "{name} {kind} simd={on}: any-hit stream, ray {i}"
+                    );
                     assert_eq!(
                         key(s.intersect(r)),
                         want[i],

@@ -130,6 +130,29 @@ fn every_structure_writes_the_same_hits() {
                 "{w}: {accel} --packets (simd {simd}) wrote other hits than brute force"
             );
         }
+        // Streams of rays walking the binary BVHs interleaved.
+        for (accel, simd) in [
+            ("bvh-binned", true),
+            ("bvh-sweep", true),
+            ("bvh-binned", false),
+        ] {
+            let out = dir.join(format!("{w}-{accel}-stream.npy"));
+            let mut cmd = raymesh();
+            cmd.arg("raycast")
+                .arg(&mesh)
+                .arg("--rays")
+                .arg(&rays)
+                .args(["--accel", accel, "--stream", "--out"])
+                .arg(&out);
+            if !simd {
+                cmd.arg("--no-simd");
+            }
+            run_ok(&mut cmd);
+            assert!(
+                reference.as_ref() == Some(&npy_data(&out)),
+                "{w}: {accel} --stream (simd {simd}) wrote other hits than brute force"
+            );
+        }
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
@@ -165,6 +188,11 @@ fn any_hit_agrees_on_what_is_hit() {
     for accel in ["brute", "bvh", "grid", "kdtree"] {
         assert_eq!(count(&["--any-hit", "--accel", accel]), closest, "{accel}");
     }
+    assert_eq!(
+        count(&["--any-hit", "--accel", "bvh-binned", "--stream"]),
+        closest,
+        "bvh-binned --stream"
+    );
     let table = run_ok(
         raymesh()
             .arg("raycast")

@@ -77,7 +77,11 @@ impl CompactMesh {
     #[inline(always)]
     #[must_use]
     pub fn prev(h: HalfEdge) -> HalfEdge {
-        HalfEdge(if h.0 % 3 == 0 { h.0 + 2 } else { h.0 - 1 })
+        HalfEdge(if h.0.is_multiple_of(3) {
+            h.0 + 2
+        } else {
+            h.0 - 1
+        })
     }
 
     /// Triangle of a half-edge.

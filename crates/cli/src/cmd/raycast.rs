@@ -1,4 +1,4 @@
-//! `raymesh raycast MESH --rays RAYS.npy [--out HITS.npy] [--accel NAME] [--any-hit] [--threads N] [--repeat R] [--json] [--stats]`.
+//! `raymesh raycast MESH --rays RAYS.npy [--out HITS.npy] [--accel NAME] [--any-hit] [--threads N] [--repeat R] [--json] [--stats] [--packets | --stream] [--no-simd]`.
 
 use crate::npy::{self, HitRecord};
 use anyhow::{Context, Result};
@@ -45,6 +45,14 @@ pub struct Args {
     /// dominant axis are traced one by one. Same hits, bit for bit.
     #[arg(long, conflicts_with = "any_hit")]
     pub packets: bool,
+    /// Trace each task's rays as a stream (`Scene::intersect_stream`,
+    /// `Scene::any_hit_stream`): a few rays walk the tree at once,
+    /// interleaved, which hides memory latency on incoherent rays (random
+    /// directions); slower on coherent ones. Binary BVHs only (bvh-median,
+    /// bvh-binned, bvh-sweep); other structures trace one by one. Same
+    /// hits, bit for bit.
+    #[arg(long, conflicts_with = "packets")]
+    pub stream: bool,
     /// Turn the SIMD kernels off and run the portable fallbacks (same hits,
     /// bit for bit), to measure what the kernels buy.
     #[arg(long)]
@@ -68,6 +76,7 @@ struct Report {
     sah_cost: f64,
     any_hit: bool,
     packets: bool,
+    stream: bool,
     threads: usize,
     #[serde(skip_serializing_if = "Option::is_none")]
     nodes_per_ray: Option<f64>,
@@ -84,17 +93,40 @@ pub fn trace(scene: &Scene<Triangles>, rays: &[Ray], any_hit: bool, out: &mut [H
         .zip(rays.par_chunks(CHUNK))
         .for_each(|(out, rays)| {
             for (o, r) in out.iter_mut().zip(rays) {
-                let h = if any_hit {
+                *o = record(if any_hit {
                     scene.any_hit(r)
                 } else {
                     scene.intersect(r)
-                };
-                *o = h.map_or(HitRecord::MISS, |h| HitRecord {
-                    t: h.t,
-                    prim: h.prim as i32,
-                    u: h.u,
-                    v: h.v,
                 });
+            }
+        });
+}
+
+/// A hit record of a hit, or [`HitRecord::MISS`].
+fn record(h: Option<raymesh_accel::Hit>) -> HitRecord {
+    h.map_or(HitRecord::MISS, |h| HitRecord {
+        t: h.t,
+        prim: h.prim as i32,
+        u: h.u,
+        v: h.v,
+    })
+}
+
+/// Traces every ray, in parallel, each task's rays as one stream
+/// ([`Scene::intersect_stream`] or [`Scene::any_hit_stream`]), into hit
+/// records: the same records as [`trace`].
+pub fn trace_stream(scene: &Scene<Triangles>, rays: &[Ray], any_hit: bool, out: &mut [HitRecord]) {
+    out.par_chunks_mut(CHUNK)
+        .zip(rays.par_chunks(CHUNK))
+        .for_each(|(out, rays)| {
+            let mut hits = vec![None; rays.len()];
+            if any_hit {
+                scene.any_hit_stream(rays, &mut hits);
+            } else {
+                scene.intersect_stream(rays, &mut hits);
+            }
+            for (o, h) in out.iter_mut().zip(hits) {
+                *o = record(h);
             }
         });
 }
@@ -102,15 +134,7 @@ pub fn trace(scene: &Scene<Triangles>, rays: &[Ray], any_hit: bool, out: &mut [H
 /// Closest hits of every ray, in parallel, eight consecutive rays traced
 /// together as a packet ([`Scene::intersect8`]), into hit records.
 pub fn trace_packets(scene: &Scene<Triangles>, rays: &[Ray], out: &mut [HitRecord]) {
-    const _: () = assert!(CHUNK % LANES == 0);
-    let record = |h: Option<raymesh_accel::Hit>| {
-        h.map_or(HitRecord::MISS, |h| HitRecord {
-            t: h.t,
-            prim: h.prim as i32,
-            u: h.u,
-            v: h.v,
-        })
-    };
+    const _: () = assert!(CHUNK.is_multiple_of(LANES));
     out.par_chunks_mut(CHUNK)
         .zip(rays.par_chunks(CHUNK))
         .for_each(|(out, rays)| {
@@ -185,6 +209,8 @@ pub fn run(args: &Args) -> Result<()> {
         pool.install(|| {
             if args.packets {
                 trace_packets(&scene, &rays, &mut hits);
+            } else if args.stream {
+                trace_stream(&scene, &rays, args.any_hit, &mut hits);
             } else {
                 trace(&scene, &rays, args.any_hit, &mut hits);
             }
@@ -222,6 +248,7 @@ pub fn run(args: &Args) -> Result<()> {
         sah_cost: stats.sah_cost,
         any_hit: args.any_hit,
         packets: args.packets,
+        stream: args.stream,
         threads,
         nodes_per_ray: counted.map(|c| c.0),
         prims_per_ray: counted.map(|c| c.1),

@@ -1,0 +1,221 @@
+//! Rays traced as a stream ([`Scene::intersect_stream`],
+//! [`Scene::any_hit_stream`]) give, ray by ray, what each ray traced alone
+//! gives: the same primitive and the same bits of `t`, `u`, `v` and the
+//! normal. Incoherent rays (random origins and directions, rays from inside
+//! the box, rays at vertices and edges, short and invalid rays) over random
+//! soups, spheres and mixes, real meshes and the hard cases, in streams of
+//! every length around the number of rays in flight.
+
+use proptest::prelude::*;
+use raymesh_accel::*;
+use raymesh_geometry::Sphere;
+
+mod common;
+use common::{load, tri_mesh};
+
+/// The binary BVHs take streams; the others trace one by one.
+const KINDS: [AccelKind; 6] = [
+    AccelKind::BvhBinned,
+    AccelKind::BvhMedian,
+    AccelKind::BvhSweep,
+    AccelKind::Bvh8,
+    AccelKind::Grid,
+    AccelKind::Brute,
+];
+
+fn key(h: Option<Hit>) -> Option<(u32, u32, u32, u32, u32, [u32; 3])> {
+    h.map(|h| {
+        (
+            h.prim,
+            h.instance,
+            h.t.to_bits(),
+            h.u.to_bits(),
+            h.v.to_bits(),
+            h.normal.to_array().map(f32::to_bits),
+        )
+    })
+}
+
+/// Checks both stream queries against one-by-one tracing, over the whole
+/// ray list and over its first few rays (streams shorter than the lanes in
+/// flight); returns how many rays hit.
+fn check<P: Primitives>(s: &Scene<P>, rays: &[Ray], what: &str) -> usize {
+    let mut hits = 0;
+    for n in [rays.len(), rays.len().min(3), rays.len().min(1), 0] {
+        let rays = &rays[..n];
+        let mut got = vec![None; n];
+        s.intersect_stream(rays, &mut got);
+        let mut any = vec![None; n];
+        s.any_hit_stream(rays, &mut any);
+        for (i, r) in rays.iter().enumerate() {
+            assert_eq!(key(got[i]), key(s.intersect(r)), "{what}: ray {i}: {r:?}");
+            assert_eq!(
+                key(any[i]),
+                key(s.any_hit(r)),
+                "{what}: any hit, ray {i}: {r:?}"
+            );
+        }
+        hits = hits.max(got.iter().filter(|h| h.is_some()).count());
+    }
+    hits
+}
+
+/// Every kind over an indexed mesh, over its corner rows in leaf order
+/// (what `raymesh raycast` traces), and over rows in the mesh's order.
+fn check_mesh(m: &TriangleMesh, rays: &[Ray]) -> usize {
+    let mut hits = 0;
+    for kind in KINDS {
+        hits = hits.max(check(
+            &Scene::from_mesh(m, kind),
+            rays,
+            &format!("{kind} rows"),
+        ));
+        check(
+            &Scene::build(m.clone(), kind),
+            rays,
+            &format!("{kind} mesh"),
+        );
+        let rows = Triangles::from_mesh(m);
+        check(
+            &Scene::build(rows, kind),
+            rays,
+            &format!("{kind} built rows"),
+        );
+    }
+    hits
+}
+
+/// A small deterministic generator (xorshift), so that the real-mesh rays
+/// need no strategy.
+fn uniform(seed: u64) -> impl FnMut() -> f32 {
+    let mut s = seed | 1;
+    move || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        (s >> 40) as f32 / (1u64 << 24) as f32
+    }
+}
+
+/// Incoherent rays for a mesh: from random points of a box twice the
+/// mesh's (inside it too) in random directions, some with short
+/// intervals; at its vertices and edge midpoints; and a few invalid.
+fn incoherent_rays(m: &TriangleMesh, n: usize, seed: u64) -> Vec<Ray> {
+    let b = m.positions.iter().fold(Aabb::EMPTY, |a, p| a.grow(*p));
+    let (c, d) = (b.centroid(), b.diagonal());
+    let mut u = uniform(seed);
+    let mut v3 = move || Vec3::new(u() - 0.5, u() - 0.5, u() - 0.5);
+    let mut rays = Vec::new();
+    for i in 0..n {
+        let o = c + v3() * 2.0 * d;
+        let tmax = if i % 5 == 4 { d * 0.3 } else { f32::INFINITY };
+        rays.push(Ray::new(o, v3(), 0.0, tmax));
+        if m.len() > 0 && i % 3 == 0 {
+            let [a, bb, _] = m.corners((i % m.len()) as u32);
+            rays.push(Ray::infinite(o, a - o));
+            rays.push(Ray::infinite(o, (a + bb) * 0.5 - o));
+        }
+    }
+    rays.push(Ray::infinite(Vec3::NAN, Vec3::X));
+    rays.push(Ray::new(c, Vec3::Y, 2.0, 1.0));
+    rays.push(Ray::infinite(c, Vec3::ZERO));
+    rays
+}
+
+fn point() -> impl Strategy<Value = Vec3> {
+    (-2.0f32..2.0, -2.0f32..2.0, -2.0f32..2.0).prop_map(|(x, y, z)| Vec3::new(x, y, z))
+}
+
+/// A soup's triangles, with one sharing an edge with the first and one
+/// duplicating it.
+fn soup(tris: Vec<(Vec3, Vec3, Vec3)>) -> Vec<[Vec3; 3]> {
+    let mut t: Vec<[Vec3; 3]> = tris.into_iter().map(|(a, b, c)| [a, b, c]).collect();
+    if let Some(&[a, b, c]) = t.first() {
+        t.push([b, a, c + Vec3::Z]);
+        t.push([a, b, c]);
+    }
+    t
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 64, failure_persistence: None, ..ProptestConfig::default() })]
+
+    #[test]
+    fn random_soups(tris in proptest::collection::vec((point(), point(), point()), 0..150),
+                    seed in any::<u64>()) {
+        let m = tri_mesh(&soup(tris));
+        let rays = incoherent_rays(&m, 60, seed);
+        check_mesh(&m, &rays);
+    }
+
+    #[test]
+    fn spheres_and_mixes(spheres in proptest::collection::vec((point(), 0.05f32..0.8), 0..30),
+                         tris in proptest::collection::vec((point(), point(), point()), 0..30),
+                         seed in any::<u64>()) {
+        let sph: Vec<Sphere> = spheres.iter().map(|&(c, r)| Sphere::new(c, r)).collect();
+        let tris = soup(tris);
+        let rays = incoherent_rays(&tri_mesh(&tris), 60, seed);
+        for kind in KINDS {
+            check(&Scene::build(Spheres(sph.clone()), kind), &rays, "spheres");
+            let mut mix: Vec<Shape> = sph.iter().copied().map(Shape::Sphere).collect();
+            mix.extend(tris.iter().copied().map(Shape::Triangle));
+            check(&Scene::build(Shapes(mix), kind), &rays, "mix");
+        }
+    }
+}
+
+/// Real meshes: most rays hit, and every stream answer is the one-by-one
+/// answer.
+#[test]
+fn real_meshes() {
+    for name in [
+        "elephant-with-holes.off",
+        "sphere.ply",
+        "double-torus-example.off",
+        "degtri_sliding.off",
+        "mesh_with_border.off",
+    ] {
+        let m = load(name);
+        let rays = incoherent_rays(&m, 700, name.len() as u64);
+        let hits = check_mesh(&m, &rays);
+        assert!(hits > rays.len() / 10, "{name}: only {hits} hits");
+    }
+}
+
+/// Axis-parallel rays through vertices and along shared edges, grazing
+/// rays from inside the box, huge coordinates, one triangle, none.
+#[test]
+fn hard_cases() {
+    let grid: Vec<[Vec3; 3]> = (0..64)
+        .flat_map(|i| {
+            let (x, y) = ((i % 8) as f32, (i / 8) as f32);
+            let p = |dx: f32, dy: f32| Vec3::new(x + dx, y + dy, 0.0);
+            [
+                [p(0.0, 0.0), p(1.0, 0.0), p(1.0, 1.0)],
+                [p(0.0, 0.0), p(1.0, 1.0), p(0.0, 1.0)],
+            ]
+        })
+        .collect();
+    let mut rays = Vec::new();
+    for i in 0..9 {
+        let f = i as f32;
+        rays.push(Ray::infinite(Vec3::new(f, 2.0, 5.0), Vec3::NEG_Z));
+        rays.push(Ray::infinite(Vec3::new(f * 0.5, f * 0.5, -3.0), Vec3::Z));
+        rays.push(Ray::infinite(
+            Vec3::new(0.5, f, 0.0),
+            Vec3::new(1.0, 0.0, 1e-7),
+        ));
+        rays.push(Ray::infinite(Vec3::new(-1.0, f, 0.0), Vec3::X));
+        rays.push(Ray::new(Vec3::new(f, 3.0, 1.0), Vec3::NEG_Z, 0.0, 1.0));
+    }
+    let hits = check_mesh(&tri_mesh(&grid), &rays);
+    assert!(hits > rays.len() / 4, "only {hits} hits");
+    let huge: Vec<[Vec3; 3]> = grid.iter().map(|t| t.map(|p| p * 1e30)).collect();
+    let rays_huge: Vec<Ray> = rays
+        .iter()
+        .map(|r| Ray::infinite(r.origin() * 1e30, r.dir()))
+        .collect();
+    check_mesh(&tri_mesh(&huge), &rays_huge);
+    check_mesh(&tri_mesh(&grid[..1]), &rays);
+    check_mesh(&TriangleMesh::default(), &rays);
+}
