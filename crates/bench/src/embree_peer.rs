@@ -7,11 +7,11 @@
 #![allow(unsafe_code)]
 
 use embree::sys::{
-    rtcAttachGeometry, rtcCommitGeometry, rtcCommitScene, rtcIntersect1, rtcIntersect8,
-    rtcNewDevice, rtcNewGeometry, rtcNewScene, rtcOccluded1, rtcReleaseDevice, rtcReleaseGeometry,
-    rtcReleaseScene, rtcSetDeviceMemoryMonitorFunction, rtcSetSceneBuildQuality,
-    rtcSetSharedGeometryBuffer, RTCBufferType, RTCBuildQuality, RTCDevice, RTCFormat,
-    RTCGeometryType, RTCHit, RTCHit8, RTCRay, RTCRay8, RTCRayHit, RTCRayHit8, RTCScene,
+    rtcAttachGeometry, rtcCommitGeometry, rtcCommitScene, rtcIntersect1, rtcIntersect1M,
+    rtcIntersect8, rtcNewDevice, rtcNewGeometry, rtcNewScene, rtcOccluded1, rtcOccluded1M,
+    rtcReleaseDevice, rtcReleaseGeometry, rtcReleaseScene, rtcSetDeviceMemoryMonitorFunction,
+    rtcSetSceneBuildQuality, rtcSetSharedGeometryBuffer, RTCBufferType, RTCBuildQuality, RTCDevice,
+    RTCFormat, RTCGeometryType, RTCHit, RTCHit8, RTCRay, RTCRay8, RTCRayHit, RTCRayHit8, RTCScene,
 };
 use raymesh_geometry::Vec3;
 use std::sync::atomic::{AtomicI64, Ordering};
@@ -180,6 +180,61 @@ impl EmbreeScene {
         })
     }
 
+    /// Closest hits (`any == false`, `(t, prim)`) or any hits (`(0, 0)`)
+    /// of a batch of rays in one stream call (`rtcIntersect1M` or
+    /// `rtcOccluded1M`, with the incoherent-rays hint), into `out`.
+    pub fn stream(&self, rays: &[[f32; 8]], any: bool, out: &mut [Option<(f32, u32)>]) {
+        let mut ctx = embree::IntersectContext::incoherent();
+        let m = u32::try_from(rays.len()).expect("a stream of fewer than 2^32 rays");
+        if any {
+            let mut rs: Vec<RTCRay> = rays.iter().map(Self::ray).collect();
+            // SAFETY: the scene is committed and alive; `rs` holds `m`
+            // rays, 16-byte aligned (the type says so), `size_of` apart.
+            unsafe {
+                rtcOccluded1M(
+                    self.scene,
+                    &mut ctx,
+                    rs.as_mut_ptr(),
+                    m,
+                    std::mem::size_of::<RTCRay>(),
+                );
+            }
+            for (o, r) in out.iter_mut().zip(&rs) {
+                *o = (r.tfar == f32::NEG_INFINITY).then_some((0.0, 0));
+            }
+        } else {
+            let mut rhs: Vec<RTCRayHit> = rays
+                .iter()
+                .map(|r| RTCRayHit {
+                    ray: Self::ray(r),
+                    hit: RTCHit {
+                        Ng_x: 0.0,
+                        Ng_y: 0.0,
+                        Ng_z: 0.0,
+                        u: 0.0,
+                        v: 0.0,
+                        primID: u32::MAX,
+                        geomID: u32::MAX,
+                        instID: [u32::MAX],
+                    },
+                })
+                .collect();
+            // SAFETY: as above, for `m` ray-hit records.
+            unsafe {
+                rtcIntersect1M(
+                    self.scene,
+                    &mut ctx,
+                    rhs.as_mut_ptr(),
+                    m,
+                    std::mem::size_of::<RTCRayHit>(),
+                );
+            }
+            for (o, rh) in out.iter_mut().zip(&rhs) {
+                *o = (rh.hit.geomID != u32::MAX).then_some((rh.ray.tfar, rh.hit.primID));
+            }
+        }
+    }
+
     /// Any hit.
     pub fn occluded(&self, r: &[f32; 8]) -> bool {
         let mut ctx = embree::IntersectContext::incoherent();
@@ -223,7 +278,9 @@ impl crate::engines::Engine for EmbreeScene {
         any: bool,
         run: &crate::engines::Runner,
     ) -> (f64, Vec<crate::engines::Answer>) {
-        if any {
+        if run.stream {
+            run.run_chunks(rays, |rays, out| self.stream(rays, any, out))
+        } else if any {
             run.run(rays, |r| self.occluded(r).then_some((0.0, 0)))
         } else if run.packets {
             run.run8(

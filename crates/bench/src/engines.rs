@@ -27,9 +27,36 @@ pub struct Runner<'a> {
     /// trace packets (raymesh's `Scene::intersect8`, Embree's
     /// `rtcIntersect8`); the others trace one ray at a time regardless.
     pub packets: bool,
+    /// Traces each task's rays as one stream, for the engines with a
+    /// stream call (raymesh's `Scene::intersect_stream`, Embree's
+    /// `rtcIntersect1M`); the others trace one ray at a time regardless.
+    pub stream: bool,
 }
 
 impl Runner<'_> {
+    /// [`Self::run`] with each task's rays (1,024, the last fewer) given
+    /// to `chunk` together, answers in the rays' order.
+    pub fn run_chunks<R: Sync>(
+        &self,
+        rays: &[R],
+        chunk: impl Fn(&[R], &mut [Answer]) + Sync,
+    ) -> (f64, Vec<Answer>) {
+        let mut best = f64::INFINITY;
+        let mut out = Vec::new();
+        for _ in 0..self.repeat.max(1) {
+            let start = Instant::now();
+            out = self.pool.install(|| {
+                let mut out: Vec<Answer> = vec![None; rays.len()];
+                out.par_chunks_mut(1024)
+                    .zip(rays.par_chunks(1024))
+                    .for_each(|(out, rays)| chunk(rays, out));
+                out
+            });
+            best = best.min(start.elapsed().as_secs_f64());
+        }
+        (best, out)
+    }
+
     /// [`Self::run`] with each eight consecutive rays given to `eight`
     /// together (the last few, if the count is not a multiple of eight, to
     /// `one`), answers in the rays' order; tasks take 1,024 rays at least.
@@ -157,6 +184,20 @@ impl Engine for Raymesh {
                 |p| self.scene.intersect8(&p.each_ref().map(ray)).map(hit),
                 |r| hit(self.scene.intersect(&ray(r))),
             );
+        }
+        if run.stream {
+            return run.run_chunks(rays, |rays, out| {
+                let rays: Vec<_> = rays.iter().map(ray).collect();
+                let mut hits = vec![None; rays.len()];
+                if any {
+                    self.scene.any_hit_stream(&rays, &mut hits);
+                } else {
+                    self.scene.intersect_stream(&rays, &mut hits);
+                }
+                for (o, h) in out.iter_mut().zip(hits) {
+                    *o = h.map(|h| if any { (0.0, 0) } else { (h.t, h.prim) });
+                }
+            });
         }
         if any {
             run.run(rays, |r| self.scene.occluded(&ray(r)).then_some((0.0, 0)))
@@ -499,7 +540,23 @@ mod tests {
                     pool: &pool,
                     repeat: 1,
                     packets: false,
+                    stream: false,
                 };
+                // raymesh's stream mode (over a binary BVH, where it
+                // interleaves rays) gives its one-ray answers exactly.
+                let binary = build("raymesh", AccelKind::BvhBinned, &mesh.positions, &tris);
+                let stream = Runner {
+                    stream: true,
+                    ..run
+                };
+                for w in [Workload::Primary, Workload::Random, Workload::Shadow] {
+                    let rays = make_rays(w, &scene, 48, 3);
+                    for any in [false, true] {
+                        let (_, want) = binary.trace(&rays, any, &run);
+                        let (_, got) = binary.trace(&rays, any, &stream);
+                        assert_eq!(got, want, "{file}: {w:?} as a stream, any {any}");
+                    }
+                }
                 // raymesh's packet mode gives its one-ray answers exactly,
                 // camera rays (coherent packets) included.
                 let packets = Runner {

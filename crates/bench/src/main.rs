@@ -66,6 +66,13 @@ struct Args {
     /// Rust peers and any-hit queries stay one ray at a time.
     #[arg(long)]
     packets: bool,
+    /// Traces each task's 1,024 rays as one stream where the engine has a
+    /// stream call (raymesh `Scene::intersect_stream`/`any_hit_stream`,
+    /// which interleave rays over the binary BVHs; Embree
+    /// `rtcIntersect1M`/`rtcOccluded1M` with the incoherent hint), closest
+    /// and any hits; the Rust peers stay one ray at a time.
+    #[arg(long, conflicts_with = "packets")]
+    stream: bool,
 }
 
 /// One engine's build on one mesh.
@@ -246,6 +253,7 @@ fn main() -> Result<()> {
                 pool: &pool,
                 repeat: args.repeat,
                 packets: args.packets,
+                stream: args.stream,
             };
             // The reference's answers per (workload, query), then each
             // engine in turn: built, traced, compared, dropped.
