@@ -1,4 +1,4 @@
-//! criterion micro-benchmarks of the hot kernels: the slab test of one box,
+//! criterion micro-benchmarks of the hot kernels: a ray's set-up, the slab test of one box,
 //! one traversal step (an 8-wide node's boxes at once), the watertight
 //! triangle test (one, and a leaf block of eight), each with the SIMD
 //! kernels on and off; and one whole closest-hit query on a real mesh.
@@ -55,6 +55,16 @@ fn kernels(c: &mut Criterion) {
         (0..8u32).map(|i| [3 * i, 3 * i + 1, 3 * i + 2]).collect(),
     );
     let block = Triangles::from_mesh(&tm);
+
+    // What a query pays before any node: the reciprocal and the shear.
+    let packed: Vec<(Vec3, Vec3)> = rays.iter().map(|r| (r.origin(), r.dir())).collect();
+    c.bench_function("Ray::new (256 rays)", |b| {
+        b.iter(|| {
+            for &(o, d) in &packed {
+                black_box(Ray::new(black_box(o), black_box(d), 0.0, f32::INFINITY));
+            }
+        })
+    });
 
     c.bench_function("slab test, one box (256 rays)", |b| {
         b.iter(|| {
