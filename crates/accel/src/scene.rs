@@ -335,7 +335,7 @@ impl<P: Primitives> Scene<P> {
     /// `rays[i]`, bit for bit.
     ///
     /// Over a binary BVH in leaf order, the rays walk the tree a few at a
-    /// time, interleaved ([`Bvh::traverse_stream`]): about 1.3 times the
+    /// time, interleaved: about 1.3 times the
     /// speed of tracing one by one on incoherent rays (random directions),
     /// but slower on coherent ones (a camera's, or shadow rays toward one
     /// light), whose branches the one-by-one walk predicts well; see

@@ -147,7 +147,7 @@ unsafe fn slab8_avx(
 }
 
 /// [`Bvh::traverse_stream`]'s loop compiled with AVX2 and its pair test
-/// ([`pair_slab`]) inlined. A closure handed to [`with_avx2`] would do
+/// (`pair_slab_avx`) inlined. A closure handed to [`with_avx2`] would do
 /// the same only if the compiler inlined it there, which it declines for
 /// a loop this size (the kernel then became a call per node, 40% slower
 /// than the one-ray walk); a `#[target_feature]` function inlines the
