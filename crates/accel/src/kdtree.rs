@@ -297,17 +297,25 @@ impl Builder<'_> {
         }
         let boxes = self.boxes;
         // Touching prims go both ways (`<=`, `>=`), so plane hits are found
-        // from either side. The below side is kept in the node's own list
-        // (filtered in place, in order): one new list a node instead of two,
-        // so half the allocations and first-touch page faults, which the
-        // kernel serves one thread at a time.
-        let above: Vec<u32> = ids
-            .iter()
-            .copied()
-            .filter(|&i| boxes[i as usize].max[axis] >= split)
-            .collect();
+        // from either side. One pass reads each box once for both sides;
+        // the below side is kept in the node's own list (compacted in
+        // place, in order): one new list a node instead of two, so half the
+        // allocations and first-touch page faults.
         let mut below = ids;
-        below.retain(|&i| boxes[i as usize].min[axis] <= split);
+        let mut above = Vec::new();
+        let mut kept = 0;
+        for k in 0..n {
+            let i = below[k];
+            let b = &boxes[i as usize];
+            if b.max[axis] >= split {
+                above.push(i);
+            }
+            if b.min[axis] <= split {
+                below[kept] = i;
+                kept += 1;
+            }
+        }
+        below.truncate(kept);
         if below.len() == n && above.len() == n {
             return Decision::Leaf(below);
         }
