@@ -9,7 +9,7 @@ use raymesh_accel::*;
 use raymesh_geometry::{Mat4, Sphere};
 
 mod common;
-use common::{load, tri_mesh};
+use common::{hit_bits as key, load, point, soup, tri_mesh, unit_grid};
 
 /// The structures: the wide BVHs take packets, the others fall back.
 const KINDS: [AccelKind; 5] = [
@@ -19,19 +19,6 @@ const KINDS: [AccelKind; 5] = [
     AccelKind::Grid,
     AccelKind::Brute,
 ];
-
-fn key(h: Option<Hit>) -> Option<(u32, u32, u32, u32, u32, [u32; 3])> {
-    h.map(|h| {
-        (
-            h.prim,
-            h.instance,
-            h.t.to_bits(),
-            h.u.to_bits(),
-            h.v.to_bits(),
-            h.normal.to_array().map(f32::to_bits),
-        )
-    })
-}
 
 /// Checks `intersect8` against `intersect` on each packet of `rays` (in
 /// eights, the last padded by repeating); returns how many packets were
@@ -87,18 +74,10 @@ fn camera_rays(o: Vec3, aims: &[Vec3], spread: f32, targets: &[Vec3]) -> Vec<Ray
     rays
 }
 
-fn point() -> impl Strategy<Value = Vec3> {
-    (-2.0f32..2.0, -2.0f32..2.0, -2.0f32..2.0).prop_map(|(x, y, z)| Vec3::new(x, y, z))
-}
-
-/// Triangles of a soup, their corners and edge midpoints, with some
-/// triangles sharing edges and duplicated.
-fn soup(tris: Vec<(Vec3, Vec3, Vec3)>) -> (Vec<[Vec3; 3]>, Vec<Vec3>) {
-    let mut t: Vec<[Vec3; 3]> = tris.into_iter().map(|(a, b, c)| [a, b, c]).collect();
-    if let Some(&[a, b, c]) = t.first() {
-        t.push([b, a, c + Vec3::Z]); // shares an edge
-        t.push([a, b, c]); // duplicate
-    }
+/// A soup's triangles (shared edge and duplicate added), and points to
+/// aim at: the first eight's corners, edge midpoints and centroids.
+fn soup_and_targets(tris: Vec<(Vec3, Vec3, Vec3)>) -> (Vec<[Vec3; 3]>, Vec<Vec3>) {
+    let t = soup(tris);
     let targets = t
         .iter()
         .take(8)
@@ -115,7 +94,7 @@ proptest! {
                     origin in point(),
                     aims in proptest::collection::vec(point(), 6),
                     spread in prop_oneof![Just(0.0f32), 0.001f32..0.3]) {
-        let (tris, targets) = soup(tris);
+        let (tris, targets) = soup_and_targets(tris);
         let rays = camera_rays(origin * 3.0 + Vec3::Z * 4.0, &aims, spread, &targets);
         check_mesh(&tri_mesh(&tris), &rays);
     }
@@ -126,7 +105,7 @@ proptest! {
                          origin in point(),
                          aims in proptest::collection::vec(point(), 4)) {
         let sph: Vec<Sphere> = spheres.iter().map(|&(c, r)| Sphere::new(c, r)).collect();
-        let (tris, targets) = soup(tris);
+        let (tris, targets) = soup_and_targets(tris);
         let rays = camera_rays(origin * 3.0 + Vec3::Z * 4.0, &aims, 0.05, &targets);
         for kind in KINDS {
             check(&Scene::build(Spheres(sph.clone()), kind), &rays, "spheres");
@@ -250,16 +229,7 @@ fn instances() {
 /// along shared edges, huge coordinates, an empty scene, invalid lanes.
 #[test]
 fn hard_cases() {
-    let grid: Vec<[Vec3; 3]> = (0..64)
-        .flat_map(|i| {
-            let (x, y) = ((i % 8) as f32, (i / 8) as f32);
-            let p = |dx: f32, dy: f32| Vec3::new(x + dx, y + dy, 0.0);
-            [
-                [p(0.0, 0.0), p(1.0, 0.0), p(1.0, 1.0)],
-                [p(0.0, 0.0), p(1.0, 1.0), p(0.0, 1.0)],
-            ]
-        })
-        .collect();
+    let grid = unit_grid();
     let m = tri_mesh(&grid);
     let mut rays = Vec::new();
     // Axis-parallel, through vertices and along shared edges.

@@ -7,7 +7,7 @@
 use raymesh_accel::*;
 
 mod common;
-use common::load;
+use common::{load, uniform};
 
 /// Hit as bits, so that `-0.0` and `0.0` differ and NaN compares.
 fn key(h: Option<Hit>) -> Option<(u32, u32, u32, u32)> {
@@ -19,13 +19,7 @@ fn key(h: Option<Hit>) -> Option<(u32, u32, u32, u32)> {
 fn rays(m: &TriangleMesh, n: usize) -> Vec<Ray> {
     let b = m.positions.iter().fold(Aabb::EMPTY, |a, p| a.grow(*p));
     let (c, d) = (b.centroid(), b.diagonal());
-    let mut s = 0x2545_f491_4f6c_dd1du64;
-    let mut next = move || {
-        s ^= s << 13;
-        s ^= s >> 7;
-        s ^= s << 17;
-        (s >> 40) as f32 / (1u64 << 24) as f32
-    };
+    let mut next = uniform(0x2545_f491_4f6c_dd1d);
     let mut out = Vec::new();
     for i in 0..n {
         let dir = Vec3::new(next() - 0.5, next() - 0.5, next() - 0.5);

@@ -11,7 +11,7 @@ use raymesh_accel::*;
 use raymesh_geometry::Sphere;
 
 mod common;
-use common::{load, tri_mesh};
+use common::{hit_bits as key, load, point, soup, tri_mesh, uniform, unit_grid};
 
 /// The binary BVHs take streams; the others trace one by one.
 const KINDS: [AccelKind; 6] = [
@@ -22,19 +22,6 @@ const KINDS: [AccelKind; 6] = [
     AccelKind::Grid,
     AccelKind::Brute,
 ];
-
-fn key(h: Option<Hit>) -> Option<(u32, u32, u32, u32, u32, [u32; 3])> {
-    h.map(|h| {
-        (
-            h.prim,
-            h.instance,
-            h.t.to_bits(),
-            h.u.to_bits(),
-            h.v.to_bits(),
-            h.normal.to_array().map(f32::to_bits),
-        )
-    })
-}
 
 /// Checks both stream queries against one-by-one tracing, over the whole
 /// ray list and over its first few rays (streams shorter than the lanes in
@@ -85,18 +72,6 @@ fn check_mesh(m: &TriangleMesh, rays: &[Ray]) -> usize {
     hits
 }
 
-/// A small deterministic generator (xorshift), so that the real-mesh rays
-/// need no strategy.
-fn uniform(seed: u64) -> impl FnMut() -> f32 {
-    let mut s = seed | 1;
-    move || {
-        s ^= s << 13;
-        s ^= s >> 7;
-        s ^= s << 17;
-        (s >> 40) as f32 / (1u64 << 24) as f32
-    }
-}
-
 /// Incoherent rays for a mesh: from random points of a box twice the
 /// mesh's (inside it too) in random directions, some with short
 /// intervals; at its vertices and edge midpoints; and a few invalid.
@@ -120,21 +95,6 @@ fn incoherent_rays(m: &TriangleMesh, n: usize, seed: u64) -> Vec<Ray> {
     rays.push(Ray::new(c, Vec3::Y, 2.0, 1.0));
     rays.push(Ray::infinite(c, Vec3::ZERO));
     rays
-}
-
-fn point() -> impl Strategy<Value = Vec3> {
-    (-2.0f32..2.0, -2.0f32..2.0, -2.0f32..2.0).prop_map(|(x, y, z)| Vec3::new(x, y, z))
-}
-
-/// A soup's triangles, with one sharing an edge with the first and one
-/// duplicating it.
-fn soup(tris: Vec<(Vec3, Vec3, Vec3)>) -> Vec<[Vec3; 3]> {
-    let mut t: Vec<[Vec3; 3]> = tris.into_iter().map(|(a, b, c)| [a, b, c]).collect();
-    if let Some(&[a, b, c]) = t.first() {
-        t.push([b, a, c + Vec3::Z]);
-        t.push([a, b, c]);
-    }
-    t
 }
 
 proptest! {
@@ -186,16 +146,7 @@ fn real_meshes() {
 /// rays from inside the box, huge coordinates, one triangle, none.
 #[test]
 fn hard_cases() {
-    let grid: Vec<[Vec3; 3]> = (0..64)
-        .flat_map(|i| {
-            let (x, y) = ((i % 8) as f32, (i / 8) as f32);
-            let p = |dx: f32, dy: f32| Vec3::new(x + dx, y + dy, 0.0);
-            [
-                [p(0.0, 0.0), p(1.0, 0.0), p(1.0, 1.0)],
-                [p(0.0, 0.0), p(1.0, 1.0), p(0.0, 1.0)],
-            ]
-        })
-        .collect();
+    let grid = unit_grid();
     let mut rays = Vec::new();
     for i in 0..9 {
         let f = i as f32;

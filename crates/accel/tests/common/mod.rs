@@ -1,6 +1,7 @@
-//! Meshes shared by the integration tests.
+//! Meshes, hit keys and generators shared by the integration tests.
 
-use raymesh_accel::{TriangleMesh, Vec3};
+use proptest::prelude::*;
+use raymesh_accel::{Hit, TriangleMesh, Vec3};
 use std::path::PathBuf;
 
 /// A mesh from the repository's `tests/data`, fan-triangulated.
@@ -20,4 +21,67 @@ pub fn tri_mesh(tris: &[[Vec3; 3]]) -> TriangleMesh {
         .map(|i| [3 * i, 3 * i + 1, 3 * i + 2])
         .collect();
     TriangleMesh::new(positions, triangles)
+}
+
+/// A hit as bits (primitive, instance, `t`, `u`, `v`, normal), so that
+/// `-0.0` and `0.0` differ: what "the same hit, bit for bit" compares.
+#[allow(dead_code)]
+pub fn hit_bits(h: Option<Hit>) -> Option<(u32, u32, u32, u32, u32, [u32; 3])> {
+    h.map(|h| {
+        (
+            h.prim,
+            h.instance,
+            h.t.to_bits(),
+            h.u.to_bits(),
+            h.v.to_bits(),
+            h.normal.to_array().map(f32::to_bits),
+        )
+    })
+}
+
+/// A point of the cube `[-2, 2]³`.
+#[allow(dead_code)]
+pub fn point() -> impl Strategy<Value = Vec3> {
+    (-2.0f32..2.0, -2.0f32..2.0, -2.0f32..2.0).prop_map(|(x, y, z)| Vec3::new(x, y, z))
+}
+
+/// A soup's triangles, with one sharing an edge with the first and one
+/// duplicating it.
+#[allow(dead_code)]
+pub fn soup(tris: Vec<(Vec3, Vec3, Vec3)>) -> Vec<[Vec3; 3]> {
+    let mut t: Vec<[Vec3; 3]> = tris.into_iter().map(|(a, b, c)| [a, b, c]).collect();
+    if let Some(&[a, b, c]) = t.first() {
+        t.push([b, a, c + Vec3::Z]); // shares an edge
+        t.push([a, b, c]); // duplicate
+    }
+    t
+}
+
+/// 8 × 8 unit squares in the plane z = 0, two triangles each: shared
+/// edges and vertices on a lattice, for rays along and through them.
+#[allow(dead_code)]
+pub fn unit_grid() -> Vec<[Vec3; 3]> {
+    (0..64)
+        .flat_map(|i| {
+            let (x, y) = ((i % 8) as f32, (i / 8) as f32);
+            let p = |dx: f32, dy: f32| Vec3::new(x + dx, y + dy, 0.0);
+            [
+                [p(0.0, 0.0), p(1.0, 0.0), p(1.0, 1.0)],
+                [p(0.0, 0.0), p(1.0, 1.0), p(0.0, 1.0)],
+            ]
+        })
+        .collect()
+}
+
+/// Uniform floats in `[0, 1)` from a fixed seed (xorshift64), for rays
+/// that need no strategy.
+#[allow(dead_code)]
+pub fn uniform(seed: u64) -> impl FnMut() -> f32 {
+    let mut s = seed | 1;
+    move || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        (s >> 40) as f32 / (1u64 << 24) as f32
+    }
 }
