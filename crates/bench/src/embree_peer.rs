@@ -97,6 +97,18 @@ impl EmbreeScene {
         }
     }
 
+    /// A hit record before the query: no geometry, no primitive.
+    const NO_HIT: RTCHit = RTCHit {
+        Ng_x: 0.0,
+        Ng_y: 0.0,
+        Ng_z: 0.0,
+        u: 0.0,
+        v: 0.0,
+        primID: u32::MAX,
+        geomID: u32::MAX,
+        instID: [u32::MAX],
+    };
+
     fn ray(r: &[f32; 8]) -> RTCRay {
         RTCRay {
             org_x: r[0],
@@ -119,16 +131,7 @@ impl EmbreeScene {
         let mut ctx = embree::IntersectContext::incoherent();
         let mut rh = RTCRayHit {
             ray: Self::ray(r),
-            hit: RTCHit {
-                Ng_x: 0.0,
-                Ng_y: 0.0,
-                Ng_z: 0.0,
-                u: 0.0,
-                v: 0.0,
-                primID: u32::MAX,
-                geomID: u32::MAX,
-                instID: [u32::MAX],
-            },
+            hit: Self::NO_HIT,
         };
         // SAFETY: the scene is committed and alive; ctx and rh are valid for the call.
         unsafe { rtcIntersect1(self.scene, &mut ctx, &mut rh) };
@@ -207,16 +210,7 @@ impl EmbreeScene {
                 .iter()
                 .map(|r| RTCRayHit {
                     ray: Self::ray(r),
-                    hit: RTCHit {
-                        Ng_x: 0.0,
-                        Ng_y: 0.0,
-                        Ng_z: 0.0,
-                        u: 0.0,
-                        v: 0.0,
-                        primID: u32::MAX,
-                        geomID: u32::MAX,
-                        instID: [u32::MAX],
-                    },
+                    hit: Self::NO_HIT,
                 })
                 .collect();
             // SAFETY: as above, for `m` ray-hit records.

@@ -34,6 +34,19 @@ pub struct Runner<'a> {
 }
 
 impl Runner<'_> {
+    /// Best time of `repeat` timed passes of `pass` on the pool, in
+    /// seconds, and the last pass's answers: what every `run` shares.
+    fn best_of(&self, pass: impl Fn() -> Vec<Answer> + Sync) -> (f64, Vec<Answer>) {
+        let mut best = f64::INFINITY;
+        let mut out = Vec::new();
+        for _ in 0..self.repeat.max(1) {
+            let start = Instant::now();
+            out = self.pool.install(&pass);
+            best = best.min(start.elapsed().as_secs_f64());
+        }
+        (best, out)
+    }
+
     /// [`Self::run`] with each task's rays (1,024, the last fewer) given
     /// to `chunk` together, answers in the rays' order.
     pub fn run_chunks<R: Sync>(
@@ -41,20 +54,13 @@ impl Runner<'_> {
         rays: &[R],
         chunk: impl Fn(&[R], &mut [Answer]) + Sync,
     ) -> (f64, Vec<Answer>) {
-        let mut best = f64::INFINITY;
-        let mut out = Vec::new();
-        for _ in 0..self.repeat.max(1) {
-            let start = Instant::now();
-            out = self.pool.install(|| {
-                let mut out: Vec<Answer> = vec![None; rays.len()];
-                out.par_chunks_mut(1024)
-                    .zip(rays.par_chunks(1024))
-                    .for_each(|(out, rays)| chunk(rays, out));
-                out
-            });
-            best = best.min(start.elapsed().as_secs_f64());
-        }
-        (best, out)
+        self.best_of(|| {
+            let mut out: Vec<Answer> = vec![None; rays.len()];
+            out.par_chunks_mut(1024)
+                .zip(rays.par_chunks(1024))
+                .for_each(|(out, rays)| chunk(rays, out));
+            out
+        })
     }
 
     /// [`Self::run`] with each eight consecutive rays given to `eight`
@@ -66,43 +72,27 @@ impl Runner<'_> {
         eight: impl Fn(&[R; 8]) -> [Answer; 8] + Sync,
         one: impl Fn(&R) -> Answer + Sync,
     ) -> (f64, Vec<Answer>) {
-        let mut best = f64::INFINITY;
-        let mut out = Vec::new();
-        for _ in 0..self.repeat.max(1) {
-            let start = Instant::now();
-            out = self.pool.install(|| {
-                let mut out: Vec<Answer> = vec![None; rays.len()];
-                out.par_chunks_mut(8)
-                    .zip(rays.par_chunks(8))
-                    .with_min_len(128)
-                    .for_each(|(out, c)| match <&[R; 8]>::try_from(c) {
-                        Ok(p) => out.copy_from_slice(&eight(p)),
-                        Err(_) => {
-                            for (o, r) in out.iter_mut().zip(c) {
-                                *o = one(r);
-                            }
+        self.best_of(|| {
+            let mut out: Vec<Answer> = vec![None; rays.len()];
+            out.par_chunks_mut(8)
+                .zip(rays.par_chunks(8))
+                .with_min_len(128)
+                .for_each(|(out, c)| match <&[R; 8]>::try_from(c) {
+                    Ok(p) => out.copy_from_slice(&eight(p)),
+                    Err(_) => {
+                        for (o, r) in out.iter_mut().zip(c) {
+                            *o = one(r);
                         }
-                    });
-                out
-            });
-            best = best.min(start.elapsed().as_secs_f64());
-        }
-        (best, out)
+                    }
+                });
+            out
+        })
     }
 
     /// Best time of `repeat` passes of `f` over every ray (1,024-ray
     /// chunks on the pool), in seconds, and the last pass's answers.
     pub fn run<R: Sync>(&self, rays: &[R], f: impl Fn(&R) -> Answer + Sync) -> (f64, Vec<Answer>) {
-        let mut best = f64::INFINITY;
-        let mut out = Vec::new();
-        for _ in 0..self.repeat.max(1) {
-            let start = Instant::now();
-            out = self
-                .pool
-                .install(|| rays.par_iter().with_min_len(1024).map(&f).collect());
-            best = best.min(start.elapsed().as_secs_f64());
-        }
-        (best, out)
+        self.best_of(|| rays.par_iter().with_min_len(1024).map(&f).collect())
     }
 }
 
