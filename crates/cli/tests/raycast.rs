@@ -106,20 +106,24 @@ fn every_structure_writes_the_same_hits() {
             reference.as_ref() == Some(&npy_data(&out)),
             "{w}: bvh8 --no-simd wrote other hits than brute force"
         );
-        // Packets of eight rays, with and without the SIMD kernels.
-        for (accel, simd) in [
-            ("bvh8", true),
-            ("bvh4", true),
-            ("bvh-binned", true),
-            ("bvh8", false),
+        // Packets of eight rays, and streams of rays walking the binary
+        // BVHs interleaved, with and without the SIMD kernels.
+        for (accel, mode, simd) in [
+            ("bvh8", "--packets", true),
+            ("bvh4", "--packets", true),
+            ("bvh-binned", "--packets", true),
+            ("bvh8", "--packets", false),
+            ("bvh-binned", "--stream", true),
+            ("bvh-sweep", "--stream", true),
+            ("bvh-binned", "--stream", false),
         ] {
-            let out = dir.join(format!("{w}-{accel}-packets.npy"));
+            let out = dir.join(format!("{w}-{accel}{mode}-{simd}.npy"));
             let mut cmd = raymesh();
             cmd.arg("raycast")
                 .arg(&mesh)
                 .arg("--rays")
                 .arg(&rays)
-                .args(["--accel", accel, "--packets", "--out"])
+                .args(["--accel", accel, mode, "--out"])
                 .arg(&out);
             if !simd {
                 cmd.arg("--no-simd");
@@ -127,30 +131,7 @@ fn every_structure_writes_the_same_hits() {
             run_ok(&mut cmd);
             assert!(
                 reference.as_ref() == Some(&npy_data(&out)),
-                "{w}: {accel} --packets (simd {simd}) wrote other hits than brute force"
-            );
-        }
-        // Streams of rays walking the binary BVHs interleaved.
-        for (accel, simd) in [
-            ("bvh-binned", true),
-            ("bvh-sweep", true),
-            ("bvh-binned", false),
-        ] {
-            let out = dir.join(format!("{w}-{accel}-stream.npy"));
-            let mut cmd = raymesh();
-            cmd.arg("raycast")
-                .arg(&mesh)
-                .arg("--rays")
-                .arg(&rays)
-                .args(["--accel", accel, "--stream", "--out"])
-                .arg(&out);
-            if !simd {
-                cmd.arg("--no-simd");
-            }
-            run_ok(&mut cmd);
-            assert!(
-                reference.as_ref() == Some(&npy_data(&out)),
-                "{w}: {accel} --stream (simd {simd}) wrote other hits than brute force"
+                "{w}: {accel} {mode} (simd {simd}) wrote other hits than brute force"
             );
         }
     }
