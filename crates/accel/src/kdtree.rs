@@ -6,6 +6,7 @@
 use crate::{AccelStats, BuildConfig, Leaf, RayCounter};
 use raymesh_geometry::{cull_bound, Aabb, Ray, Vec3};
 use rayon::prelude::*;
+use std::ops::Range;
 
 /// Deepest a k-d tree may grow; also the traversal stack size.
 const MAX_DEPTH: usize = 64;
@@ -92,20 +93,37 @@ enum Subtree {
     Split(usize, f32, Box<Subtree>, Box<Subtree>),
 }
 
-/// How a node is built: a leaf over these primitives, or a split.
-enum Decision {
-    Leaf(Vec<u32>),
-    Split(Split),
-}
+/// Per bin and axis, how many boxes start in it and how many end in it.
+type BinCounts = (Vec<[u32; 3]>, Vec<[u32; 3]>);
 
-/// A split plane, the primitives and boxes of its two sides, and the
-/// count of splits that did not pay along the path.
-struct Split {
+/// A node's split plane, and the count of splits that did not pay along
+/// the path down to it.
+#[derive(Clone, Copy)]
+struct Plane {
     axis: usize,
     pos: f32,
-    below: (Aabb, Vec<u32>),
-    above: (Aabb, Vec<u32>),
     bad: u32,
+}
+
+impl Plane {
+    /// The boxes of the two sides of `bounds`, below and above.
+    fn sides(self, bounds: Aabb) -> (Aabb, Aabb) {
+        let (mut lo, mut hi) = (bounds, bounds);
+        lo.max[self.axis] = self.pos;
+        hi.min[self.axis] = self.pos;
+        (lo, hi)
+    }
+}
+
+/// What one thread's sequential build reuses from node to node, so that a
+/// node allocates nothing: with both threads allocating and freeing a list
+/// a node, the allocator took 14% of a 2-thread build at 10M triangles
+/// (perf), part of it waiting on the other thread's arena lock.
+struct Scratch {
+    /// The reference lists of the nodes being built, as a stack: a node's
+    /// list, then (above it) the above side's, then its descendants'.
+    ids: Vec<u32>,
+    bins: BinCounts,
 }
 
 /// Appends `tree` to `out` in the order a one-thread build makes (below
@@ -278,95 +296,132 @@ impl KdTree {
 }
 
 impl Builder<'_> {
-    /// Leaf or split for a node over `ids` (the box `bounds`).
-    fn decide(&self, bounds: Aabb, ids: Vec<u32>, depth: usize, bad: u32) -> Decision {
+    /// The plane to split a node over `ids` (the box `bounds`) at, or
+    /// `None` for a leaf. `bins` is scratch space for the binning.
+    fn plan(
+        &self,
+        bounds: Aabb,
+        ids: &[u32],
+        depth: usize,
+        bad: u32,
+        bins: &mut BinCounts,
+    ) -> Option<Plane> {
         let n = ids.len();
         if n <= 1 || depth >= self.max_depth {
-            return Decision::Leaf(ids);
+            return None;
         }
-        let Some((cost, axis, split)) = self.best_split(bounds, &ids) else {
-            return Decision::Leaf(ids);
-        };
-        let leaf_cost = n as f32;
+        let (cost, axis, pos) = self.best_split(bounds, ids, bins)?;
         let mut bad = bad;
-        if cost >= leaf_cost {
+        if cost >= n as f32 {
             bad += 1;
             if bad > MAX_BAD_REFINES || n <= self.config.max_leaf / 2 {
-                return Decision::Leaf(ids);
+                return None;
             }
         }
-        let boxes = self.boxes;
-        // Touching prims go both ways (`<=`, `>=`), so plane hits are found
-        // from either side. One pass reads each box once for both sides;
-        // the below side is kept in the node's own list (compacted in
-        // place, in order): one new list a node instead of two, so half the
-        // allocations and first-touch page faults.
-        let mut below = ids;
-        let mut above = Vec::new();
-        let mut kept = 0;
-        for k in 0..n {
-            let i = below[k];
-            let b = &boxes[i as usize];
+        Some(Plane { axis, pos, bad })
+    }
+
+    /// Splits the reference list `ids[range]` by the plane `axis`, `split`:
+    /// the below side is compacted in place at the start of the range, in
+    /// order, and the above side appended to `ids`, in order. Returns the
+    /// below side's length. Touching prims go both ways (`<=`, `>=`), so
+    /// plane hits are found from either side. One pass reads each box once
+    /// for both sides, and no list is allocated: the one-thread build keeps
+    /// its nodes' lists on one stack (see [`Scratch`]).
+    fn partition_in(
+        &self,
+        ids: &mut Vec<u32>,
+        range: Range<usize>,
+        axis: usize,
+        split: f32,
+    ) -> usize {
+        ids.reserve(range.len());
+        let mut kept = range.start;
+        for k in range.clone() {
+            let i = ids[k];
+            let b = &self.boxes[i as usize];
             if b.max[axis] >= split {
-                above.push(i);
+                ids.push(i);
             }
             if b.min[axis] <= split {
-                below[kept] = i;
+                ids[kept] = i;
                 kept += 1;
             }
         }
-        below.truncate(kept);
-        if below.len() == n && above.len() == n {
-            return Decision::Leaf(below);
-        }
-        let (mut lo, mut hi) = (bounds, bounds);
-        lo.max[axis] = split;
-        hi.min[axis] = split;
-        Decision::Split(Split {
-            axis,
-            pos: split,
-            below: (lo, below),
-            above: (hi, above),
-            bad,
-        })
+        kept - range.start
+    }
+
+    /// The two sides of `ids` ([`Self::partition_in`]) as two lists, the
+    /// below one in `ids`' own allocation.
+    fn partition(&self, mut ids: Vec<u32>, axis: usize, split: f32) -> (Vec<u32>, Vec<u32>) {
+        let n = ids.len();
+        let kept = self.partition_in(&mut ids, 0..n, axis, split);
+        let above = ids.split_off(n);
+        ids.truncate(kept);
+        (ids, above)
     }
 
     /// Builds the subtree over `ids`, its two sides in parallel when large.
     fn subtree(&self, bounds: Aabb, ids: Vec<u32>, depth: usize, bad: u32) -> Subtree {
-        if ids.len() < self.par_subtree {
-            let mut local = Local::default();
-            self.build(&mut local, bounds, ids, depth, bad);
+        let n = ids.len();
+        let mut local = Local::default();
+        if n < self.par_subtree {
+            let mut scratch = Scratch {
+                ids,
+                bins: BinCounts::default(),
+            };
+            self.build(&mut local, &mut scratch, bounds, 0..n, depth, bad);
             return Subtree::Flat(local);
         }
-        match self.decide(bounds, ids, depth, bad) {
-            Decision::Leaf(ids) => {
-                let mut local = Local::default();
-                Self::make_leaf(&mut local, &ids);
-                Subtree::Flat(local)
-            }
-            Decision::Split(s) => {
-                let (b, a) = rayon::join(
-                    || self.subtree(s.below.0, s.below.1, depth + 1, s.bad),
-                    || self.subtree(s.above.0, s.above.1, depth + 1, s.bad),
-                );
-                Subtree::Split(s.axis, s.pos, Box::new(b), Box::new(a))
-            }
+        let Some(p) = self.plan(bounds, &ids, depth, bad, &mut BinCounts::default()) else {
+            Self::make_leaf(&mut local, &ids);
+            return Subtree::Flat(local);
+        };
+        let (below, above) = self.partition(ids, p.axis, p.pos);
+        if below.len() == n && above.len() == n {
+            Self::make_leaf(&mut local, &below);
+            return Subtree::Flat(local);
         }
+        let (lo, hi) = p.sides(bounds);
+        let (b, a) = rayon::join(
+            || self.subtree(lo, below, depth + 1, p.bad),
+            || self.subtree(hi, above, depth + 1, p.bad),
+        );
+        Subtree::Split(p.axis, p.pos, Box::new(b), Box::new(a))
     }
 
-    /// Builds the subtree over `ids` into `out`, on this thread.
-    fn build(&self, out: &mut Local, bounds: Aabb, ids: Vec<u32>, depth: usize, bad: u32) {
-        match self.decide(bounds, ids, depth, bad) {
-            Decision::Leaf(ids) => Self::make_leaf(out, &ids),
-            Decision::Split(s) => {
-                let here = out.nodes.len();
-                out.nodes.push(KdNode::interior(s.axis, s.pos, 0));
-                self.build(out, s.below.0, s.below.1, depth + 1, s.bad);
-                let above_index = out.nodes.len() as u32;
-                out.nodes[here] = KdNode::interior(s.axis, s.pos, above_index);
-                self.build(out, s.above.0, s.above.1, depth + 1, s.bad);
-            }
+    /// Builds the subtree over the references `s.ids[range]` into `out`,
+    /// on this thread. Lists of the nodes below are pushed on `s.ids` past
+    /// its length and popped before returning.
+    fn build(
+        &self,
+        out: &mut Local,
+        s: &mut Scratch,
+        bounds: Aabb,
+        range: Range<usize>,
+        depth: usize,
+        bad: u32,
+    ) {
+        let (n, top) = (range.len(), s.ids.len());
+        let Some(p) = self.plan(bounds, &s.ids[range.clone()], depth, bad, &mut s.bins) else {
+            Self::make_leaf(out, &s.ids[range]);
+            return;
+        };
+        let kept = self.partition_in(&mut s.ids, range.clone(), p.axis, p.pos);
+        let above = top..s.ids.len();
+        if kept == n && above.len() == n {
+            Self::make_leaf(out, &s.ids[above]);
+        } else {
+            let (lo, hi) = p.sides(bounds);
+            let here = out.nodes.len();
+            out.nodes.push(KdNode::interior(p.axis, p.pos, 0));
+            let below = range.start..range.start + kept;
+            self.build(out, s, lo, below, depth + 1, p.bad);
+            let above_index = out.nodes.len() as u32;
+            out.nodes[here] = KdNode::interior(p.axis, p.pos, above_index);
+            self.build(out, s, hi, above, depth + 1, p.bad);
         }
+        s.ids.truncate(top);
     }
 
     fn make_leaf(out: &mut Local, ids: &[u32]) {
@@ -375,8 +430,37 @@ impl Builder<'_> {
         out.prims.extend_from_slice(ids);
     }
 
+    /// One pass over the boxes of `ids` counts every axis: in how many
+    /// boxes start, and end, in each of `nb` bins from `origin` (`scale`
+    /// bins a unit), the last bin holding those at the far end, into `bins`.
+    fn bin(&self, ids: &[u32], origin: Vec3, scale: Vec3, nb: usize, bins: &mut BinCounts) {
+        let (mins, maxs) = bins;
+        for v in [&mut *mins, &mut *maxs] {
+            v.clear();
+            v.resize(nb + 1, [0; 3]);
+        }
+        // Clamped in floats (`max` drops a NaN), then truncated: the same
+        // bins as a saturating cast, without its fix-ups (as the BVH's
+        // binning does).
+        let last = Vec3::splat(nb as f32);
+        for &i in ids {
+            let b = self.boxes[i as usize];
+            let lo = ((b.min - origin) * scale).max(Vec3::ZERO).min(last);
+            let hi = ((b.max - origin) * scale).max(Vec3::ZERO).min(last);
+            for axis in 0..3 {
+                mins[lo[axis] as i32 as usize][axis] += 1;
+                maxs[hi[axis] as i32 as usize][axis] += 1;
+            }
+        }
+    }
+
     /// Cheapest plane among the bin boundaries of every axis, as (cost, axis, position).
-    fn best_split(&self, bounds: Aabb, ids: &[u32]) -> Option<(f32, usize, f32)> {
+    fn best_split(
+        &self,
+        bounds: Aabb,
+        ids: &[u32],
+        bins: &mut BinCounts,
+    ) -> Option<(f32, usize, f32)> {
         // Small nodes need few candidate planes: twice their size is plenty.
         let nb = self.config.bins.min(2 * ids.len()).clamp(2, 256);
         let ext = bounds.extent();
@@ -385,28 +469,13 @@ impl Builder<'_> {
             return None;
         }
         let mut best: Option<(f32, usize, f32)> = None;
-        // One pass over the boxes counts every axis: where each box starts
-        // and ends, in bins.
-        let mut mins = vec![[0u32; 3]; nb + 1];
-        let mut maxs = vec![[0u32; 3]; nb + 1];
         let scale = Vec3::select(
             ext.cmpgt(Vec3::ZERO),
             Vec3::splat(nb as f32) / ext,
             Vec3::ZERO,
         );
-        // Clamped in floats (`max` drops a NaN), then truncated: the same
-        // bins as a saturating cast, without its fix-ups (as the BVH's
-        // binning does).
-        let last = Vec3::splat(nb as f32);
-        for &i in ids {
-            let b = self.boxes[i as usize];
-            let lo = ((b.min - bounds.min) * scale).max(Vec3::ZERO).min(last);
-            let hi = ((b.max - bounds.min) * scale).max(Vec3::ZERO).min(last);
-            for axis in 0..3 {
-                mins[lo[axis] as i32 as usize][axis] += 1;
-                maxs[hi[axis] as i32 as usize][axis] += 1;
-            }
-        }
+        self.bin(ids, bounds.min, scale, nb, bins);
+        let (mins, maxs) = (&bins.0, &bins.1);
         for axis in 0..3 {
             if !(ext[axis] > 0.0) {
                 continue;
