@@ -8,7 +8,7 @@ use raymesh_accel::*;
 use raymesh_geometry::{Mat4, Sphere};
 
 mod common;
-use common::{load, tri_mesh};
+use common::{hit_bits, load, tri_mesh};
 
 const KINDS: [AccelKind; 8] = [
     AccelKind::Aabb,
@@ -21,16 +21,9 @@ const KINDS: [AccelKind; 8] = [
     AccelKind::KdTree,
 ];
 
+/// [`hit_bits`] without the normal.
 fn key(h: Option<Hit>) -> Option<(u32, u32, u32, u32, u32)> {
-    h.map(|h| {
-        (
-            h.prim,
-            h.instance,
-            h.t.to_bits(),
-            h.u.to_bits(),
-            h.v.to_bits(),
-        )
-    })
+    hit_bits(h).map(|(prim, instance, t, u, v, _)| (prim, instance, t, u, v))
 }
 
 /// Checks every kind against brute force on every ray; returns how many rays hit.
