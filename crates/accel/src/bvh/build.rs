@@ -241,9 +241,9 @@ impl BvhBuilder {
         // flattened, so that they never coexist with both of its copies.
         let prim_ids = refs.par_iter().map(|r| r.id).collect();
         drop(refs);
-        let mut pairs = Vec::with_capacity(tree.pairs());
-        pairs.push(NodePair([Node::new(Aabb::EMPTY); 2]));
-        pairs[0].0[0] = place(tree, &mut pairs);
+        let empty = NodePair([Node::new(Aabb::EMPTY); 2]);
+        let mut pairs: Vec<NodePair> = (0..tree.pairs()).into_par_iter().map(|_| empty).collect();
+        pairs[0].0[0] = place(tree, &mut pairs[1..], 1);
         drop(slots);
         Bvh { pairs, prim_ids }
     }
@@ -259,35 +259,39 @@ impl Subtree<'_> {
     }
 }
 
-/// Appends the sibling pairs of `tree` below its root to `out`, in the
-/// order a one-thread build makes them (each pair, then the left subtree,
-/// then the right), and returns the root with its child index pointing
-/// into `out` (node `i` is `out[i / 2].0[i % 2]`).
-fn place(tree: Subtree<'_>, out: &mut Vec<NodePair>) -> Node {
+/// Writes the sibling pairs of `tree` below its root to `out` (exactly
+/// as many), in the order a one-thread build makes them (each pair, then
+/// the left subtree, then the right), and returns the root with its child
+/// index pointing into the whole array, of which `out[0]` is pair `base`
+/// (node `i` is `pairs[i / 2].0[i % 2]`). Subtrees built in parallel are
+/// placed in parallel, each into its own part of `out`.
+fn place(tree: Subtree<'_>, out: &mut [NodePair], base: u32) -> Node {
     match tree {
         Subtree::Flat(region) => {
             let nodes = region.nodes();
-            // Pairs start at node 2 in `nodes` and at node `2 * out.len()` in `out`.
-            let base = 2 * out.len() as u32;
+            // Pairs start at node 2 in `nodes` and at node `2 * base` in the array.
             let shift = |mut n: Node| {
                 if !n.is_leaf() {
-                    n.index = n.index - 2 + base;
+                    n.index = n.index - 2 + 2 * base;
                 }
                 n
             };
-            out.extend(
-                nodes[2..]
-                    .chunks_exact(2)
-                    .map(|c| NodePair([shift(c[0]), shift(c[1])])),
-            );
+            assert_eq!(out.len(), nodes.len() / 2 - 1, "one slot a pair");
+            for (o, c) in out.iter_mut().zip(nodes[2..].chunks_exact(2)) {
+                *o = NodePair([shift(c[0]), shift(c[1])]);
+            }
             shift(nodes[0])
         }
         Subtree::Split(mut root, left, right) => {
-            let at = out.len();
-            root.index = 2 * at as u32;
-            out.push(NodePair([Node::new(Aabb::EMPTY); 2]));
-            out[at].0[0] = place(*left, out);
-            out[at].0[1] = place(*right, out);
+            root.index = 2 * base;
+            let (own, rest) = out.split_first_mut().expect("room for the pair");
+            let (l, r) = rest.split_at_mut(left.pairs() - 1);
+            let right_base = base + 1 + l.len() as u32;
+            let (a, b) = rayon::join(
+                || place(*left, l, base + 1),
+                || place(*right, r, right_base),
+            );
+            *own = NodePair([a, b]);
             root
         }
     }
