@@ -15,6 +15,7 @@ use crate::{AccelStats, Leaf, RayCounter};
 use raymesh_geometry::{
     cull_bound, max_nan_second as max_ns, min_nan_second as min_ns, Aabb, Ray, Vec3, ROBUST_EXIT,
 };
+use rayon::prelude::*;
 use std::sync::atomic::{AtomicU64, Ordering};
 
 /// `W` children: boxes by axis and lane, and for each child either a node
@@ -168,7 +169,7 @@ impl<const W: usize> WideBvh<W> {
     /// up fuller and fewer than by greedily opening the largest child.
     #[must_use]
     pub fn from_binary(mut bin: Bvh) -> Self {
-        const { assert!(W >= 2 && W <= 8, "the collapse packs W choices in a u64") };
+        const { assert!(W >= 2 && W <= 8, "W choices of 4 bits fill 32 bits") };
         let mut out = Self {
             nodes: Vec::new(),
             prim_ids: std::mem::take(&mut bin.prim_ids),
@@ -178,11 +179,12 @@ impl<const W: usize> WideBvh<W> {
             return out;
         }
         // Read the binary nodes where they lie (no copy of them): the
-        // collapse's peak is the binary tree, its choices (W bytes a node)
+        // collapse's peak is the binary tree, its plan (8 bytes a node)
         // and the wide tree.
         let plan = Plan::<W> {
             bin: &bin,
             choice: (0..bin.pairs.len() * 2)
+                .into_par_iter()
                 .map(|_| AtomicU64::new(0))
                 .collect(),
         };
@@ -196,31 +198,17 @@ impl<const W: usize> WideBvh<W> {
             n.count[0] = count;
             out.nodes.push(n);
         } else {
-            out.collapse(&plan, 0);
+            // The plan knows how many wide nodes each subtree makes, so
+            // subtrees fill their own parts of the final array in
+            // parallel: the same nodes, in the same (depth-first) order,
+            // as one walk makes, with no array grown or copied.
+            out.nodes = (0..plan.wide_nodes(0))
+                .into_par_iter()
+                .map(|_| WideNode::<W>::EMPTY)
+                .collect();
+            emit(&plan, 0, 0, &mut out.nodes);
         }
         out
-    }
-
-    /// Makes the wide node of binary node `at` (which the plan makes a
-    /// node), and those below it; returns its index.
-    fn collapse(&mut self, plan: &Plan<'_, W>, at: u32) -> u32 {
-        let me = self.nodes.len();
-        self.nodes.push(WideNode::<W>::EMPTY);
-        let mut kids = Vec::with_capacity(W);
-        plan.children(at, &mut kids);
-        let mut node = WideNode::<W>::EMPTY;
-        for (i, &k) in kids.iter().enumerate() {
-            node.set_box(i, plan.bin.node(k).bounds());
-            if plan.choice(k)[0] == 0 {
-                let (first, count) = leaf_range(plan.bin, k).expect("a leaf choice has a range");
-                node.child[i] = first;
-                node.count[i] = count;
-            } else {
-                node.child[i] = self.collapse(plan, k);
-            }
-        }
-        self.nodes[me] = node;
-        me as u32
     }
 
     /// The primitive permutation (see [`Bvh::prim_ids`]).
@@ -562,12 +550,15 @@ const NODE_COST: f32 = 1.0;
 const BLOCK_COST: f32 = 1.5;
 
 /// The collapse's choices for each binary node `n`, filled bottom-up by
-/// [`Plan::cost`], `W` bytes packed in one word (written once each, by
-/// parallel tasks). Byte 0: 0 when `n` becomes one wide leaf, else `n`
-/// becomes a wide node whose slots are `k` slots of its left subtree and
-/// `W - k` of its right. Byte `s - 1`, for `s` in `2..=W`, when `n`'s
-/// subtree fills at most `s` slots of its parent: 0 for `s - 1` slots,
-/// else `k` of its left subtree and `s - k` of its right.
+/// [`Plan::cost`] (each word written by the one parallel task that plans
+/// `n`). The low 32 bits hold `W` choices of 4 bits. Choice 0: 0 when `n`
+/// becomes one wide leaf, else `n` becomes a wide node whose slots are
+/// `k` slots of its left subtree and `W - k` of its right. Choice `s - 1`,
+/// for `s` in `2..=W`, when `n`'s subtree fills at most `s` slots of its
+/// parent: 0 for `s - 1` slots, else `k` of its left subtree and `s - k`
+/// of its right. The high 32 bits count the wide nodes that `n`'s subtree
+/// makes when `n` is a wide node ([`Plan::wide_nodes`]), so that the
+/// collapse knows where each subtree's nodes go before it writes them.
 struct Plan<'a, const W: usize> {
     bin: &'a Bvh,
     choice: Vec<AtomicU64>,
@@ -582,10 +573,14 @@ const _: () = assert!(BLOCK <= u8::MAX as usize);
 impl<const W: usize> Plan<'_, W> {
     /// The choices made for binary node `n`.
     fn choice(&self, n: u32) -> [u8; W] {
-        let word = self.choice[n as usize]
-            .load(Ordering::Relaxed)
-            .to_le_bytes();
-        std::array::from_fn(|i| word[i])
+        let word = self.choice[n as usize].load(Ordering::Relaxed);
+        std::array::from_fn(|i| (word >> (4 * i) & 0xf) as u8)
+    }
+
+    /// How many wide nodes the collapse makes of binary node `n`'s subtree
+    /// when `n` becomes a wide node (0 when it becomes a leaf).
+    fn wide_nodes(&self, n: u32) -> u32 {
+        (self.choice[n as usize].load(Ordering::Relaxed) >> 32) as u32
     }
 
     /// The least SAH cost (unscaled by the root's area) of binary node
@@ -649,12 +644,24 @@ impl<const W: usize> Plan<'_, W> {
                 (c[s - 2], 0)
             };
         }
-        self.choice[n as usize].store(u64::from_le_bytes(choice), Ordering::Relaxed);
+        let packed = (0..W).fold(0u64, |w, i| w | u64::from(choice[i]) << (4 * i));
+        self.choice[n as usize].store(packed, Ordering::Relaxed);
+        if choice[0] != 0 {
+            // The wide node, and those its slots that are not leaves make.
+            let mut kids = Slots::<W>::default();
+            self.children(n, &mut kids);
+            let below: u32 = kids.ids[..kids.len]
+                .iter()
+                .filter(|&&k| self.choice(k)[0] != 0)
+                .map(|&k| self.wide_nodes(k))
+                .sum();
+            self.choice[n as usize].store(packed | u64::from(1 + below) << 32, Ordering::Relaxed);
+        }
         (c, range)
     }
 
     /// The binary nodes that fill the slots of the wide node made of `n`.
-    fn children(&self, n: u32, out: &mut Vec<u32>) {
+    fn children(&self, n: u32, out: &mut Slots<W>) {
         let k = self.choice(n)[0] as usize;
         let first = self.bin.node(n).index;
         self.slots(first, k, out);
@@ -662,19 +669,87 @@ impl<const W: usize> Plan<'_, W> {
     }
 
     /// The binary nodes that fill at most `s` slots with `n`'s subtree.
-    fn slots(&self, n: u32, s: usize, out: &mut Vec<u32>) {
+    fn slots(&self, n: u32, s: usize, out: &mut Slots<W>) {
         let choice = self.choice(n);
         let mut s = s;
         while s > 1 && choice[s - 1] == 0 {
             s -= 1;
         }
         if s == 1 {
-            out.push(n);
+            out.ids[out.len] = n;
+            out.len += 1;
         } else {
             let k = choice[s - 1] as usize;
             let first = self.bin.node(n).index;
             self.slots(first, k, out);
             self.slots(first + 1, s - k, out);
+        }
+    }
+}
+
+/// Wide nodes at least this many make a subtree that [`emit`] hands to a
+/// rayon task of its own (fewer in tests, so that small trees take the
+/// parallel path).
+const PAR_EMIT: u32 = if cfg!(test) { 16 } else { 1024 };
+
+/// Writes the wide node of binary node `at` (which the plan makes a node)
+/// to `out[0]` and those below it, depth first, to the rest of `out`
+/// (`out.len()` is [`Plan::wide_nodes`] of `at`); `index` is `out[0]`'s
+/// index in the whole array.
+fn emit<const W: usize>(plan: &Plan<'_, W>, at: u32, index: u32, out: &mut [WideNode<W>]) {
+    let (node, mut rest) = out.split_first_mut().expect("room for the node");
+    let mut kids = Slots::<W>::default();
+    plan.children(at, &mut kids);
+    let mut next = index + 1;
+    let mut subtrees: [(u32, u32, &mut [WideNode<W>]); W] =
+        std::array::from_fn(|_| (0, 0, &mut [][..]));
+    let mut n = 0;
+    for (i, &k) in kids.ids[..kids.len].iter().enumerate() {
+        node.set_box(i, plan.bin.node(k).bounds());
+        if plan.choice(k)[0] == 0 {
+            let (first, count) = leaf_range(plan.bin, k).expect("a leaf choice has a range");
+            node.child[i] = first;
+            node.count[i] = count;
+        } else {
+            let size = plan.wide_nodes(k);
+            let (mine, others) = std::mem::take(&mut rest).split_at_mut(size as usize);
+            rest = others;
+            node.child[i] = next;
+            subtrees[n] = (k, next, mine);
+            n += 1;
+            next += size;
+        }
+    }
+    let subtrees = subtrees.into_iter().take(n);
+    if next - index - 1 < PAR_EMIT {
+        for (k, at, part) in subtrees {
+            emit(plan, k, at, part);
+        }
+        return;
+    }
+    rayon::scope(|scope| {
+        for (k, at, part) in subtrees {
+            if part.len() >= PAR_EMIT as usize {
+                scope.spawn(move |_| emit(plan, k, at, part));
+            } else {
+                emit(plan, k, at, part);
+            }
+        }
+    });
+}
+
+/// The binary nodes that fill a wide node's slots, in order.
+#[derive(Clone, Copy, Debug)]
+struct Slots<const W: usize> {
+    ids: [u32; W],
+    len: usize,
+}
+
+impl<const W: usize> Default for Slots<W> {
+    fn default() -> Self {
+        Self {
+            ids: [0; W],
+            len: 0,
         }
     }
 }
@@ -841,6 +916,73 @@ impl<T: Copy> Stack<T> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The wide node of binary node `at` and those below it, made by one
+    /// depth-first walk that appends each node as it comes: the layout
+    /// [`emit`] must give.
+    fn walk<const W: usize>(plan: &Plan<'_, W>, at: u32, out: &mut Vec<WideNode<W>>) -> u32 {
+        let me = out.len();
+        out.push(WideNode::EMPTY);
+        let mut kids = Slots::<W>::default();
+        plan.children(at, &mut kids);
+        let mut node = WideNode::<W>::EMPTY;
+        for (i, &k) in kids.ids[..kids.len].iter().enumerate() {
+            node.set_box(i, plan.bin.node(k).bounds());
+            if plan.choice(k)[0] == 0 {
+                (node.child[i], node.count[i]) = leaf_range(plan.bin, k).unwrap();
+            } else {
+                node.child[i] = walk(plan, k, out);
+            }
+        }
+        out[me] = node;
+        me as u32
+    }
+
+    fn check_emit<const W: usize>(n: usize, threads: usize) {
+        let boxes = crate::test_util::clustered_boxes(n);
+        let bin = crate::BvhBuilder::BinnedSah.build(&boxes, &crate::BuildConfig::default());
+        let wide =
+            crate::test_util::pool(threads).install(|| WideBvh::<W>::from_binary(bin.clone()));
+        let plan = Plan::<W> {
+            bin: &bin,
+            choice: (0..bin.pairs.len() * 2)
+                .map(|_| AtomicU64::new(0))
+                .collect(),
+        };
+        plan.cost(0, 0);
+        if plan.choice(0)[0] == 0 {
+            // One leaf: no wide node to emit.
+            assert_eq!(wide.nodes.len(), 1);
+            return;
+        }
+        let mut want = Vec::new();
+        walk(&plan, 0, &mut want);
+        assert_eq!(plan.wide_nodes(0) as usize, want.len(), "n {n}");
+        assert!(wide.nodes == want, "n {n}, {threads} threads");
+    }
+
+    /// The collapse writes subtrees of at least [`PAR_EMIT`] wide nodes in
+    /// parallel, each into the part of the array its size gives: the
+    /// nodes, and their order, are those of one depth-first walk.
+    #[test]
+    fn parallel_emission_matches_one_walk() {
+        for n in [3, 40, 1000, 30_000] {
+            if n > 1000 && cfg!(debug_assertions) {
+                continue;
+            }
+            for threads in [1, 3] {
+                check_emit::<8>(n, threads);
+                check_emit::<4>(n, threads);
+            }
+        }
+        let boxes = crate::test_util::clustered_boxes(30_000);
+        let bin = crate::BvhBuilder::BinnedSah.build(&boxes, &crate::BuildConfig::default());
+        let wide = Bvh8::from_binary(bin);
+        assert!(
+            wide.nodes.len() as u32 > 2 * PAR_EMIT,
+            "the parallel path ran"
+        );
+    }
 
     /// The stack gives items back last in, first out, past its inline
     /// part too.
