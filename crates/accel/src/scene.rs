@@ -3,7 +3,7 @@
 use crate::{
     packet::{Packet8, LANES},
     prims::BLOCK,
-    Accel, AccelKind, AccelStats, BuildConfig, Bvh, Bvh4, Bvh8, CountStats, NoStats, PrimHit,
+    Accel, AccelKind, AccelStats, BuildConfig, Bvh, Bvh4, Bvh8, CountStats, Grid, NoStats, PrimHit,
     Primitives, RayCounter, TriangleMesh, Triangles,
 };
 use raymesh_geometry::{Aabb, Ray, Vec3};
@@ -82,6 +82,11 @@ impl<P: Primitives> Scene<P> {
             Some(a) => {
                 let b = a.bounds();
                 (a, b)
+            }
+            // The grid asks for the boxes in each pass instead of keeping them.
+            None if kind == AccelKind::Grid => {
+                let (grid, b) = Grid::build_by(n, &|i| prims.bounds(i), config);
+                (Accel::Grid(grid), b)
             }
             None => {
                 let boxes: Vec<Aabb> = (0..n as u32)
