@@ -43,28 +43,32 @@ impl Grid {
         Self::build_by(boxes.len(), &|i| boxes[i as usize], config).0
     }
 
-    /// [`Self::build`] over `n` primitives whose boxes `bounds(i)` gives,
+    /// [`Self::build`] over `n` primitives whose boxes `box_of(i)` gives,
     /// asked for again in each pass rather than kept in an array (24 bytes
     /// a primitive less at the peak: 2.4 GB at 100M triangles); also
     /// returns the union of the boxes (the grid's own box is padded).
     pub(crate) fn build_by(
         n: usize,
-        bounds: &(dyn Fn(u32) -> Aabb + Sync),
+        box_of: &(dyn Fn(u32) -> Aabb + Sync),
         config: &BuildConfig,
     ) -> (Self, Aabb) {
+        assert!(
+            n <= u32::MAX as usize,
+            "too many primitives for u32 indices"
+        );
         // In parallel: unions are exact, so any order gives the same box.
         let union = (0..n as u32)
             .into_par_iter()
-            .map(bounds)
+            .map(box_of)
             .reduce(|| Aabb::EMPTY, Aabb::union);
-        let grid = Self::build_in(n, bounds, union, config);
+        let grid = Self::build_in(n, box_of, union, config);
         (grid, union)
     }
 
-    /// [`Self::build_by`] once the union of the boxes is known.
+    /// [`Self::build_by`] once the union of the boxes, `bounds`, is known.
     fn build_in(
         n: usize,
-        boxes: &(dyn Fn(u32) -> Aabb + Sync),
+        box_of: &(dyn Fn(u32) -> Aabb + Sync),
         bounds: Aabb,
         config: &BuildConfig,
     ) -> Self {
@@ -122,7 +126,7 @@ impl Grid {
             .map(|_| AtomicU32::new(0))
             .collect();
         (0..n as u32).into_par_iter().for_each(|i| {
-            g.for_cells(&boxes(i), |c| {
+            g.for_cells(&box_of(i), |c| {
                 counts[c].fetch_add(1, Ordering::Relaxed);
             });
         });
@@ -141,7 +145,7 @@ impl Grid {
             .map(|_| AtomicU32::new(0))
             .collect();
         (0..n as u32).into_par_iter().for_each(|i| {
-            g.for_cells(&boxes(i), |c| {
+            g.for_cells(&box_of(i), |c| {
                 let k = fill[c].fetch_add(1, Ordering::Relaxed);
                 prims[k as usize].store(i, Ordering::Relaxed);
             });
