@@ -181,14 +181,7 @@ impl<const W: usize> WideBvh<W> {
         // Read the binary nodes where they lie (no copy of them): the
         // collapse's peak is the binary tree, its plan (8 bytes a node)
         // and the wide tree.
-        let plan = Plan::<W> {
-            bin: &bin,
-            choice: (0..bin.pairs.len() * 2)
-                .into_par_iter()
-                .map(|_| AtomicU64::new(0))
-                .collect(),
-        };
-        plan.cost(0, 0);
+        let plan = Plan::<W>::new(&bin);
         let root = bin.node(0);
         if plan.choice(0)[0] == 0 {
             let (first, count) = leaf_range(&bin, 0).expect("a leaf choice has a range");
@@ -570,7 +563,21 @@ const PAR_LEVELS: usize = 8;
 
 const _: () = assert!(BLOCK <= u8::MAX as usize);
 
-impl<const W: usize> Plan<'_, W> {
+impl<'a, const W: usize> Plan<'a, W> {
+    /// The collapse's plan of the (non-empty) binary tree `bin`: every
+    /// node's choices and wide-node count, from [`Self::cost`] at the root.
+    fn new(bin: &'a Bvh) -> Self {
+        let plan = Self {
+            bin,
+            choice: (0..bin.pairs.len() * 2)
+                .into_par_iter()
+                .map(|_| AtomicU64::new(0))
+                .collect(),
+        };
+        plan.cost(0, 0);
+        plan
+    }
+
     /// The choices made for binary node `n`.
     fn choice(&self, n: u32) -> [u8; W] {
         let word = self.choice[n as usize].load(Ordering::Relaxed);
@@ -950,13 +957,7 @@ mod tests {
         let bin = crate::BvhBuilder::BinnedSah.build(&boxes, &crate::BuildConfig::default());
         let wide =
             crate::test_util::pool(threads).install(|| WideBvh::<W>::from_binary(bin.clone()));
-        let plan = Plan::<W> {
-            bin: &bin,
-            choice: (0..bin.pairs.len() * 2)
-                .map(|_| AtomicU64::new(0))
-                .collect(),
-        };
-        plan.cost(0, 0);
+        let plan = Plan::<W>::new(&bin);
         if plan.choice(0)[0] == 0 {
             // One leaf: no wide node to emit.
             assert_eq!(wide.nodes.len(), 1);
