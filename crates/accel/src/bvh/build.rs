@@ -308,10 +308,20 @@ impl Ctx<'_> {
     /// (in parallel chunks for many primitives: unions are exact, so the
     /// result does not depend on the chunking).
     fn bounds_pair(&self, ids: &[PrimRef]) -> (Aabb, Aabb) {
+        // In SSE lanes (`Vec3A`), where `Aabb`'s `Vec3` takes each axis on
+        // its own: the same minima and maxima (a NaN corner is skipped
+        // either way: the accumulator comes second), the same centroids.
         let one = |ids: &[PrimRef]| {
-            ids.iter().fold((Aabb::EMPTY, Aabb::EMPTY), |(b, c), r| {
-                (b.union(r.bounds()), c.grow(r.centroid()))
-            })
+            let (mut lo, mut hi) = (Vec3A::INFINITY, Vec3A::NEG_INFINITY);
+            let (mut clo, mut chi) = (Vec3A::INFINITY, Vec3A::NEG_INFINITY);
+            for r in ids {
+                let (a, b) = (Vec3A::from(r.min), Vec3A::from(r.max));
+                let c = (a + b) * 0.5;
+                (lo, hi) = (a.min(lo), b.max(hi));
+                (clo, chi) = (c.min(clo), c.max(chi));
+            }
+            let aabb = |lo: Vec3A, hi: Vec3A| Aabb::new(lo.into(), hi.into());
+            (aabb(lo, hi), aabb(clo, chi))
         };
         if ids.len() < 2 * PAR_CHUNK {
             return one(ids);
@@ -588,7 +598,7 @@ impl Ctx<'_> {
         const MASK: usize = MAX_BINS - 1;
         for r in ids {
             let (lo, hi) = (Vec3A::from(r.min), Vec3A::from(r.max));
-            let k = bin3(r.centroid(), min, scale, nb);
+            let k = bin3((lo + hi) * 0.5, min, scale, nb);
             x[k[0] & MASK].add(lo, hi);
             y[k[1] & MASK].add(lo, hi);
             z[k[2] & MASK].add(lo, hi);
@@ -646,16 +656,15 @@ const MAX_BINS: usize = 64;
 const _: () = assert!(MAX_BINS.is_power_of_two());
 
 /// Bin of a centroid on each axis: the floor of its scaled offset,
-/// clamped to the bins in floats first (`f32::max` drops a NaN, so NaN
-/// lands in bin 0), so that the conversion is a plain truncation of a small
-/// number rather than a saturating float-to-`usize` cast (half of the
-/// binning loop's time before).
+/// clamped to the bins in floats first (a NaN lands in bin 0), so that the
+/// conversion is a plain truncation of a small number rather than a
+/// saturating float-to-`usize` cast (half of the binning loop's time
+/// before), and on x86-64 one SSE2 truncation of the three axes (see
+/// [`crate::simd::truncate3`]).
 #[inline(always)]
-fn bin3(c: Vec3, min: Vec3, scale: Vec3, nb: usize) -> [usize; 3] {
-    let f = (c - min) * scale;
-    let last = (nb - 1) as f32;
-    let k = |x: f32| x.max(0.0).min(last) as i32 as usize;
-    [k(f.x), k(f.y), k(f.z)]
+fn bin3(c: Vec3A, min: Vec3, scale: Vec3, nb: usize) -> [usize; 3] {
+    let f = (c - Vec3A::from(min)) * Vec3A::from(scale);
+    crate::simd::truncate3(f, (nb - 1) as f32)
 }
 
 /// [`partition`] for long slices, in parallel and in place: chunks of
