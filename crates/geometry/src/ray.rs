@@ -29,17 +29,19 @@ impl Ray {
     /// Makes a ray over `[tmin, tmax]`; `tmax` may be `f32::INFINITY`.
     #[must_use]
     pub fn new(origin: Vec3, dir: Vec3, tmin: f32, tmax: f32) -> Self {
-        let valid = origin.is_finite()
-            && dir.is_finite()
-            && dir != Vec3::ZERO
-            && !tmin.is_nan()
-            && !tmax.is_nan()
-            && tmin <= tmax;
+        // Without a branch: a ray is made per query (camera sample, shadow
+        // ray, instance, and each of a benchmark's rays), and random
+        // directions made the short-circuit checks and the sign test below
+        // mispredict. The lane masks take the three axes at once; `tmin <=
+        // tmax` is false when either is NaN.
+        let (o, d) = (Vec3A::from(origin), Vec3A::from(dir));
+        let valid = (o.is_finite_mask() & d.is_finite_mask()).all()
+            & d.cmpne(Vec3A::ZERO).any()
+            & (tmin <= tmax);
         // 1/±0 is ±inf, which the slab test handles; see `Aabb::intersect_ray`.
         // Divisions lane by lane in one SIMD division each (the same IEEE
-        // quotients as one by one): a ray is made per camera sample, shadow
-        // ray and instance, and six scalar divisions were most of its cost.
-        let inv_dir = Vec3::from(Vec3A::ONE / Vec3A::from(dir));
+        // quotients as one by one).
+        let inv_dir = Vec3::from(Vec3A::ONE / d);
         let abs = dir.abs();
         // `&`, not `&&`: no branch on the direction (NaN falls to kz = 2).
         let kz = if (abs.x >= abs.y) & (abs.x >= abs.z) {
@@ -47,16 +49,18 @@ impl Ray {
         } else {
             2 - usize::from(abs.y >= abs.z)
         };
-        // Array indexing: `Vec3`'s `Index` is a branchy `match`.
-        let d = dir.to_array();
-        let dz = d[kz];
-        // Keep the winding of the projected triangle independent of the sign of dz.
-        let (kx, ky) = if dz < 0.0 {
-            ([2, 0, 1][kz], [1, 2, 0][kz])
-        } else {
-            ([1, 2, 0][kz], [2, 0, 1][kz])
-        };
-        let shear = Vec3::from(Vec3A::new(d[kx], d[ky], 1.0) / Vec3A::splat(dz));
+        // Array indexing: `Vec3`'s `Index` is a branchy `match`. Four lanes,
+        // indexed modulo 4, so that no index needs a bounds check.
+        let a = [dir.x, dir.y, dir.z, 0.0];
+        let dz = a[kz & 3];
+        // Keep the winding of the projected triangle independent of the
+        // sign of dz: the two permutations as tables, picked by the sign.
+        const KX: [[u8; 3]; 2] = [[1, 2, 0], [2, 0, 1]];
+        const KY: [[u8; 3]; 2] = [[2, 0, 1], [1, 2, 0]];
+        let neg = usize::from(dz < 0.0);
+        let (kx, ky) = (KX[neg][kz], KY[neg][kz]);
+        let shear =
+            Vec3::from(Vec3A::new(a[kx as usize & 3], a[ky as usize & 3], 1.0) / Vec3A::splat(dz));
         let (tmin, tmax) = if valid {
             (tmin, tmax)
         } else {
@@ -69,7 +73,7 @@ impl Ray {
             tmin,
             tmax,
             shear,
-            k: [kx as u8, ky as u8, kz as u8],
+            k: [kx, ky, kz as u8],
         }
     }
 
