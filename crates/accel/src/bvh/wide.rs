@@ -374,10 +374,32 @@ impl<const W: usize> WideBvh<W> {
                         cur = first;
                         continue;
                     }
+                    let second = take(&mut mask);
+                    if mask == 0 {
+                        // Two children entered, the commonest case after
+                        // one: a comparison instead of the sort below, with
+                        // its order (the later slot first on a tie, or
+                        // unordered).
+                        let (near, far) = if ORDERED && first.entry < second.entry {
+                            (first, second)
+                        } else {
+                            (second, first)
+                        };
+                        if far.count == 0 {
+                            simd::prefetch(&self.nodes[far.child as usize]);
+                        }
+                        stack.push(far);
+                        cur = near;
+                        continue;
+                    }
                     // Sort the entered children by entry, farthest first.
                     let mut hits = [Entry::NONE; W];
-                    hits[0] = first;
-                    let mut h = 1;
+                    (hits[0], hits[1]) = if ORDERED && first.entry < second.entry {
+                        (second, first)
+                    } else {
+                        (first, second)
+                    };
+                    let mut h = 2;
                     while mask != 0 {
                         let item = take(&mut mask);
                         let mut j = h;
