@@ -7,13 +7,16 @@
 #![allow(unsafe_code)]
 
 use embree::sys::{
-    rtcAttachGeometry, rtcCommitGeometry, rtcCommitScene, rtcIntersect1, rtcIntersect1M,
-    rtcIntersect8, rtcNewDevice, rtcNewGeometry, rtcNewScene, rtcOccluded1, rtcOccluded1M,
-    rtcReleaseDevice, rtcReleaseGeometry, rtcReleaseScene, rtcSetDeviceMemoryMonitorFunction,
-    rtcSetSceneBuildQuality, rtcSetSharedGeometryBuffer, RTCBufferType, RTCBuildQuality, RTCDevice,
-    RTCFormat, RTCGeometryType, RTCHit, RTCHit8, RTCRay, RTCRay8, RTCRayHit, RTCRayHit8, RTCScene,
+    rtcAttachGeometry, rtcBuildBVH, rtcCommitGeometry, rtcCommitScene, rtcIntersect1,
+    rtcIntersect1M, rtcIntersect8, rtcNewBVH, rtcNewDevice, rtcNewGeometry, rtcNewScene,
+    rtcOccluded1, rtcOccluded1M, rtcReleaseBVH, rtcReleaseDevice, rtcReleaseGeometry,
+    rtcReleaseScene, rtcSetDeviceMemoryMonitorFunction, rtcSetSceneBuildQuality,
+    rtcSetSharedGeometryBuffer, rtcThreadLocalAlloc, RTCBounds, RTCBufferType, RTCBuildArguments,
+    RTCBuildFlags, RTCBuildPrimitive, RTCBuildQuality, RTCDevice, RTCFormat, RTCGeometryType,
+    RTCHit, RTCHit8, RTCRay, RTCRay8, RTCRayHit, RTCRayHit8, RTCScene, RTCThreadLocalAllocator,
 };
-use raymesh_geometry::Vec3;
+use raymesh_geometry::{Aabb, Vec3};
+use std::ffi::c_void;
 use std::sync::atomic::{AtomicI64, Ordering};
 use std::time::Instant;
 
@@ -36,6 +39,9 @@ pub struct EmbreeScene {
     pub build_ms: f64,
     /// Bytes Embree allocated while building.
     pub bytes: i64,
+    /// SAH cost of the tree Embree's builder makes for these triangles
+    /// (see [`builder_sah`]), computed after the timed build.
+    pub sah_cost: f64,
 }
 
 impl EmbreeScene {
@@ -86,6 +92,7 @@ impl EmbreeScene {
             rtcCommitScene(scene);
             let build_ms = start.elapsed().as_secs_f64() * 1e3;
             let bytes = ALLOCATED.load(Ordering::Relaxed) - before;
+            let sah_cost = builder_sah(device, positions, triangles);
             Self {
                 device,
                 scene,
@@ -93,6 +100,7 @@ impl EmbreeScene {
                 _indices: indices,
                 build_ms,
                 bytes,
+                sah_cost,
             }
         }
     }
@@ -256,6 +264,180 @@ impl Drop for EmbreeScene {
     }
 }
 
+/// A node or leaf of the tree [`builder_sah`] has Embree build: a leaf
+/// has `leaf_count > 0` and nothing else; a node, `n` children and their
+/// boxes.
+#[repr(C)]
+struct Item {
+    leaf_count: u32,
+    n: u32,
+    children: [*const Item; 8],
+    bounds: [RTCBounds; 8],
+}
+
+/// SAH cost, in raymesh's units (`AccelStats::sah_cost`: 1 for the root,
+/// plus each child box's area relative to the root's, times its triangles
+/// for a leaf), of the 8-wide tree Embree's SAH builder makes for the
+/// triangles: `rtcBuildBVH` with the settings Embree gives its own BVH8
+/// of `Triangle4` leaves (quality medium, blocks of 4, leaves of 4 to 32,
+/// traversal and intersection cost 1). The tree `rtcCommitScene` builds is
+/// internal; this is the same builder on the same boxes, for issue 7's
+/// "an SAH cost no worse than Embree's structure gives".
+pub fn builder_sah(device: RTCDevice, positions: &[Vec3], triangles: &[[u32; 3]]) -> f64 {
+    let mut root_box = Aabb::EMPTY;
+    let mut prims: Vec<RTCBuildPrimitive> = triangles
+        .iter()
+        .enumerate()
+        .map(|(i, t)| {
+            let b = t
+                .iter()
+                .fold(Aabb::EMPTY, |b, &v| b.grow(positions[v as usize]));
+            root_box = root_box.union(b);
+            RTCBuildPrimitive {
+                lower_x: b.min.x,
+                lower_y: b.min.y,
+                lower_z: b.min.z,
+                geomID: 0,
+                upper_x: b.max.x,
+                upper_y: b.max.y,
+                upper_z: b.max.z,
+                primID: i as u32,
+            }
+        })
+        .collect();
+    if prims.is_empty() || root_box.half_area() <= 0.0 {
+        return 0.0;
+    }
+
+    unsafe extern "C" fn alloc(a: RTCThreadLocalAllocator) -> *mut Item {
+        // SAFETY: `a` is the allocator Embree handed to the callback; the
+        // memory is Embree's, valid until the BVH is released, and zeroed
+        // here before any field is read.
+        unsafe {
+            let p = rtcThreadLocalAlloc(a, std::mem::size_of::<Item>(), 32).cast::<Item>();
+            assert!(!p.is_null(), "Embree: rtcThreadLocalAlloc failed");
+            p.write_bytes(0, 1);
+            p
+        }
+    }
+    unsafe extern "C" fn create_node(
+        a: RTCThreadLocalAllocator,
+        n: u32,
+        _: *mut c_void,
+    ) -> *mut c_void {
+        // SAFETY: see `alloc`; Embree asks for at most its branching factor, 8.
+        unsafe {
+            let p = alloc(a);
+            (*p).n = n.min(8);
+            p.cast()
+        }
+    }
+    unsafe extern "C" fn set_children(
+        node: *mut c_void,
+        kids: *mut *mut c_void,
+        n: u32,
+        _: *mut c_void,
+    ) {
+        // SAFETY: `node` came from `create_node`, `kids` holds `n` pointers.
+        unsafe {
+            let node = node.cast::<Item>();
+            for k in 0..(n as usize).min(8) {
+                (*node).children[k] = (*kids.add(k)).cast::<Item>();
+            }
+        }
+    }
+    unsafe extern "C" fn set_bounds(
+        node: *mut c_void,
+        b: *mut *const RTCBounds,
+        n: u32,
+        _: *mut c_void,
+    ) {
+        // SAFETY: `node` came from `create_node`, `b` holds `n` pointers to boxes.
+        unsafe {
+            let node = node.cast::<Item>();
+            for k in 0..(n as usize).min(8) {
+                (*node).bounds[k] = **b.add(k);
+            }
+        }
+    }
+    unsafe extern "C" fn create_leaf(
+        a: RTCThreadLocalAllocator,
+        _: *const RTCBuildPrimitive,
+        count: usize,
+        _: *mut c_void,
+    ) -> *mut c_void {
+        // SAFETY: see `alloc`.
+        unsafe {
+            let p = alloc(a);
+            (*p).leaf_count = count.max(1) as u32;
+            p.cast()
+        }
+    }
+
+    let root_area = f64::from(root_box.half_area());
+    // SAFETY: the arguments describe `prims` (alive across the call, its
+    // length as count and capacity) and the callbacks above, which write
+    // only the items they allocate; the tree is read before the BVH that
+    // owns its memory is released.
+    unsafe {
+        let bvh = rtcNewBVH(device);
+        let args = RTCBuildArguments {
+            byteSize: std::mem::size_of::<RTCBuildArguments>(),
+            buildQuality: RTCBuildQuality::MEDIUM,
+            buildFlags: RTCBuildFlags::NONE,
+            maxBranchingFactor: 8,
+            maxDepth: 32,
+            sahBlockSize: 4,
+            minLeafSize: 4,
+            maxLeafSize: 32,
+            traversalCost: 1.0,
+            intersectionCost: 1.0,
+            bvh,
+            primitives: prims.as_mut_ptr(),
+            primitiveCount: prims.len(),
+            primitiveArrayCapacity: prims.len(),
+            createNode: Some(create_node),
+            setNodeChildren: Some(set_children),
+            setNodeBounds: Some(set_bounds),
+            createLeaf: Some(create_leaf),
+            splitPrimitive: None,
+            buildProgress: None,
+            userPtr: std::ptr::null_mut(),
+        };
+        let root = rtcBuildBVH(&args).cast::<Item>().cast_const();
+        assert!(!root.is_null(), "Embree: rtcBuildBVH failed");
+        let sah = if (*root).leaf_count > 0 {
+            f64::from((*root).leaf_count)
+        } else {
+            let mut sah = 1.0;
+            let mut stack = vec![root];
+            while let Some(node) = stack.pop() {
+                let node = &*node;
+                for k in 0..node.n as usize {
+                    let b = &node.bounds[k];
+                    let area = f64::from(
+                        Aabb::new(
+                            Vec3::new(b.lower_x, b.lower_y, b.lower_z),
+                            Vec3::new(b.upper_x, b.upper_y, b.upper_z),
+                        )
+                        .half_area(),
+                    ) / root_area;
+                    let child = &*node.children[k];
+                    if child.leaf_count > 0 {
+                        sah += area * f64::from(child.leaf_count);
+                    } else {
+                        sah += area;
+                        stack.push(node.children[k]);
+                    }
+                }
+            }
+            sah
+        };
+        rtcReleaseBVH(bvh);
+        sah
+    }
+}
+
 impl crate::engines::Engine for EmbreeScene {
     fn name(&self) -> &'static str {
         "embree"
@@ -265,6 +447,9 @@ impl crate::engines::Engine for EmbreeScene {
     }
     fn bytes(&self) -> Option<usize> {
         usize::try_from(self.bytes).ok()
+    }
+    fn sah_cost(&self) -> Option<f64> {
+        Some(self.sah_cost)
     }
     fn trace(
         &self,

@@ -106,6 +106,11 @@ pub trait Engine: Send + Sync {
     /// Bytes its structure holds (triangle copies included, the caller's
     /// mesh apart), where the engine tells.
     fn bytes(&self) -> Option<usize>;
+    /// SAH cost of its tree in raymesh's units (`AccelStats::sah_cost`),
+    /// where it can be had.
+    fn sah_cost(&self) -> Option<f64> {
+        None
+    }
     /// Traces every ray for the closest hit (`any == false`) or any hit.
     fn trace(&self, rays: &[[f32; 8]], any: bool, run: &Runner) -> (f64, Vec<Answer>);
 }
@@ -161,6 +166,9 @@ impl Engine for Raymesh {
     fn bytes(&self) -> Option<usize> {
         // The structure plus its triangle rows, as `raymesh raycast` counts.
         Some(self.scene.stats().bytes + self.scene.prims().bytes())
+    }
+    fn sah_cost(&self) -> Option<f64> {
+        Some(self.scene.stats().sah_cost)
     }
     fn trace(&self, rays: &[[f32; 8]], any: bool, run: &Runner) -> (f64, Vec<Answer>) {
         // Each engine makes its rays inside the timed pass, as Embree must

@@ -84,6 +84,9 @@ struct Build {
     threads: usize,
     build_ms: f64,
     bytes_per_triangle: Option<f64>,
+    /// SAH cost of the engine's tree, in raymesh's units, where known.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    sah_cost: Option<f64>,
 }
 
 /// One engine's pass over one workload.
@@ -277,6 +280,7 @@ fn main() -> Result<()> {
                     threads: t,
                     build_ms,
                     bytes_per_triangle: engine.bytes().map(|b| b as f64 / tris.len().max(1) as f64),
+                    sah_cost: engine.sah_cost(),
                 });
                 let mut mine = Vec::new();
                 let mut k = 0;
@@ -356,9 +360,15 @@ fn main() -> Result<()> {
 /// The text report of one mesh at one thread count.
 fn report(builds: &[Build], traces: &[Trace], reference: &str) {
     let t = builds[0].threads;
-    let line = cells(builds, |b| match b.bytes_per_triangle {
-        Some(bytes) => format!("{} {:.1} ms, {bytes:.1} B/tri", b.engine, b.build_ms),
-        None => format!("{} {:.1} ms", b.engine, b.build_ms),
+    let line = cells(builds, |b| {
+        let mut c = format!("{} {:.1} ms", b.engine, b.build_ms);
+        if let Some(bytes) = b.bytes_per_triangle {
+            c += &format!(", {bytes:.1} B/tri");
+        }
+        if let Some(sah) = b.sah_cost {
+            c += &format!(", SAH {sah:.1}");
+        }
+        c
     });
     println!("  build, {t} thread(s): {line}");
     for case in traces.iter().filter(|tr| tr.engine == "raymesh") {
@@ -416,13 +426,14 @@ fn markdown(names: &[&str], builds: &[Build], traces: &[Trace], threads: &[usize
         });
         println!("| {mesh} | {t} | {row} |");
     }
-    println!("\n| mesh | engine | bytes/triangle |");
-    println!("| --- | --- | --- |");
+    println!("\n| mesh | engine | bytes/triangle | SAH cost |");
+    println!("| --- | --- | --- | --- |");
     for b in builds.iter().filter(|b| b.threads == threads[0]) {
         let bytes = b
             .bytes_per_triangle
             .map_or("not reported".to_string(), |x| format!("{x:.1}"));
-        println!("| {} | {} | {bytes} |", b.mesh, b.engine);
+        let sah = b.sah_cost.map_or("-".to_string(), |x| format!("{x:.1}"));
+        println!("| {} | {} | {bytes} | {sah} |", b.mesh, b.engine);
     }
     println!(
         "\n| mesh | workload | threads | query | {} | {} |",
