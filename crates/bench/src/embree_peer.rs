@@ -407,7 +407,8 @@ pub fn builder_sah(device: RTCDevice, positions: &[Vec3], triangles: &[[u32; 3]]
         let root = rtcBuildBVH(&args).cast::<Item>().cast_const();
         assert!(!root.is_null(), "Embree: rtcBuildBVH failed");
         let sah = if (*root).leaf_count > 0 {
-            f64::from((*root).leaf_count)
+            // One leaf: as raymesh counts a root node holding it.
+            1.0 + f64::from((*root).leaf_count)
         } else {
             let mut sah = 1.0;
             let mut stack = vec![root];
