@@ -374,17 +374,17 @@ impl<const W: usize> WideBvh<W> {
                         cur = first;
                         continue;
                     }
+                    // The first two in the sort's order below: farther
+                    // first, the later slot nearer on a tie (or unordered).
                     let second = take(&mut mask);
+                    let (far, near) = if ORDERED && first.entry < second.entry {
+                        (second, first)
+                    } else {
+                        (first, second)
+                    };
                     if mask == 0 {
                         // Two children entered, the commonest case after
-                        // one: a comparison instead of the sort below, with
-                        // its order (the later slot first on a tie, or
-                        // unordered).
-                        let (near, far) = if ORDERED && first.entry < second.entry {
-                            (first, second)
-                        } else {
-                            (second, first)
-                        };
+                        // one: that comparison instead of the sort.
                         if far.count == 0 {
                             simd::prefetch(&self.nodes[far.child as usize]);
                         }
@@ -394,11 +394,7 @@ impl<const W: usize> WideBvh<W> {
                     }
                     // Sort the entered children by entry, farthest first.
                     let mut hits = [Entry::NONE; W];
-                    (hits[0], hits[1]) = if ORDERED && first.entry < second.entry {
-                        (second, first)
-                    } else {
-                        (first, second)
-                    };
+                    (hits[0], hits[1]) = (far, near);
                     let mut h = 2;
                     while mask != 0 {
                         let item = take(&mut mask);
