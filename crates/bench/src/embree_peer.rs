@@ -32,16 +32,13 @@ unsafe extern "C" fn monitor(_user: *mut std::ffi::c_void, bytes: isize, _post: 
 pub struct EmbreeScene {
     device: RTCDevice,
     scene: RTCScene,
-    // Shared with Embree: must outlive `scene`.
-    _vertices: Vec<f32>,
-    _indices: Vec<u32>,
+    // Shared with Embree: must outlive `scene` (and read by `sah_cost`).
+    vertices: Vec<f32>,
+    indices: Vec<u32>,
     /// Milliseconds to build the BVH (geometry set-up and `rtcCommitScene`).
     pub build_ms: f64,
     /// Bytes Embree allocated while building.
     pub bytes: i64,
-    /// SAH cost of the tree Embree's builder makes for these triangles
-    /// (see [`builder_sah`]), computed after the timed build.
-    pub sah_cost: f64,
 }
 
 impl EmbreeScene {
@@ -92,15 +89,13 @@ impl EmbreeScene {
             rtcCommitScene(scene);
             let build_ms = start.elapsed().as_secs_f64() * 1e3;
             let bytes = ALLOCATED.load(Ordering::Relaxed) - before;
-            let sah_cost = builder_sah(device, positions, triangles);
             Self {
                 device,
                 scene,
-                _vertices: vertices,
-                _indices: indices,
+                vertices,
+                indices,
                 build_ms,
                 bytes,
-                sah_cost,
             }
         }
     }
@@ -283,15 +278,17 @@ struct Item {
 /// traversal and intersection cost 1). The tree `rtcCommitScene` builds is
 /// internal; this is the same builder on the same boxes, for issue 7's
 /// "an SAH cost no worse than Embree's structure gives".
-pub fn builder_sah(device: RTCDevice, positions: &[Vec3], triangles: &[[u32; 3]]) -> f64 {
+///
+/// The scene's shared buffers give the triangles: `vertices` three floats
+/// a vertex (and a padding float), `indices` three a triangle.
+pub fn builder_sah(device: RTCDevice, vertices: &[f32], indices: &[u32]) -> f64 {
+    let vertex = |v: u32| Vec3::from_slice(&vertices[3 * v as usize..][..3]);
     let mut root_box = Aabb::EMPTY;
-    let mut prims: Vec<RTCBuildPrimitive> = triangles
-        .iter()
+    let mut prims: Vec<RTCBuildPrimitive> = indices
+        .chunks_exact(3)
         .enumerate()
         .map(|(i, t)| {
-            let b = t
-                .iter()
-                .fold(Aabb::EMPTY, |b, &v| b.grow(positions[v as usize]));
+            let b = t.iter().fold(Aabb::EMPTY, |b, &v| b.grow(vertex(v)));
             root_box = root_box.union(b);
             RTCBuildPrimitive {
                 lower_x: b.min.x,
@@ -450,7 +447,8 @@ impl crate::engines::Engine for EmbreeScene {
         usize::try_from(self.bytes).ok()
     }
     fn sah_cost(&self) -> Option<f64> {
-        Some(self.sah_cost)
+        // Not timed, and built only when asked: once per reported build.
+        Some(builder_sah(self.device, &self.vertices, &self.indices))
     }
     fn trace(
         &self,
