@@ -100,6 +100,8 @@ enum Subtree<'a> {
 struct Region<'a> {
     nodes: &'a mut [Node],
     len: usize,
+    /// Depth of the deepest leaf written (the root at depth 1).
+    depth: usize,
 }
 
 impl Region<'_> {
@@ -239,13 +241,18 @@ impl BvhBuilder {
         let tree = ctx.subtree(&mut refs, &mut slots, 0, 1, bounds, cbounds);
         // The references (32 bytes a primitive) go before the tree is
         // flattened, so that they never coexist with both of its copies.
+        let depth = tree.depth() as u32;
         let prim_ids = refs.par_iter().map(|r| r.id).collect();
         drop(refs);
         let empty = NodePair([Node::new(Aabb::EMPTY); 2]);
         let mut pairs: Vec<NodePair> = (0..tree.pairs()).into_par_iter().map(|_| empty).collect();
         pairs[0].0[0] = place(tree, &mut pairs[1..], 1);
         drop(slots);
-        Bvh { pairs, prim_ids }
+        Bvh {
+            pairs,
+            prim_ids,
+            depth,
+        }
     }
 }
 
@@ -255,6 +262,14 @@ impl Subtree<'_> {
         match self {
             Self::Flat(nodes) => nodes.len() / 2,
             Self::Split(_, l, r) => l.pairs() + r.pairs(),
+        }
+    }
+
+    /// Depth of the deepest leaf (the whole tree's root at depth 1).
+    fn depth(&self) -> usize {
+        match self {
+            Self::Flat(nodes) => nodes.depth,
+            Self::Split(_, l, r) => l.depth().max(r.depth()),
         }
     }
 }
@@ -347,6 +362,7 @@ impl Ctx<'_> {
         let mut nodes = Region {
             nodes: slots,
             len: 0,
+            depth: 0,
         };
         if ids.len() < self.par_subtree {
             nodes.push(Node::new(Aabb::EMPTY));
@@ -370,6 +386,7 @@ impl Ctx<'_> {
                 root.count = ids.len() as u32;
                 nodes.push(root);
                 nodes.push(Node::new(Aabb::EMPTY));
+                nodes.depth = depth;
                 Subtree::Flat(nodes)
             }
             Some(mid) => {
@@ -438,6 +455,7 @@ impl Ctx<'_> {
                 let n = &mut nodes[node];
                 n.index = offset;
                 n.count = ids.len() as u32;
+                nodes.depth = nodes.depth.max(depth);
             }
             Some(mid) => {
                 let first = nodes.len();

@@ -25,6 +25,10 @@ use wide::{PacketEntry, Stack};
 /// which halves the primitives per level, so depth ≤ 64 + log2(2^32) = 96.
 pub(crate) const STACK_SIZE: usize = 96;
 
+/// Levels up to which a binary traversal uses a stack of this many
+/// entries rather than [`STACK_SIZE`] (see [`Bvh::traverse_blocks`]).
+const SHALLOW: usize = 32;
+
 /// A block callback for traversals that hand out leaves as slot ranges:
 /// calls `leaf` on each primitive of the range in order (through the
 /// permutation `ids`, when there is one) until it returns a bound below
@@ -149,6 +153,8 @@ pub struct Bvh {
     /// Leaf slot → primitive; empty once the owner has reordered its
     /// primitives to match (then slot `k` is primitive `k`).
     prim_ids: Vec<u32>,
+    /// [`Self::depth`], recorded by the builder.
+    depth: u32,
 }
 
 impl Bvh {
@@ -186,21 +192,7 @@ impl Bvh {
     /// Depth of the deepest leaf (1 for a single leaf, 0 for an empty tree).
     #[must_use]
     pub fn depth(&self) -> usize {
-        if self.pairs.is_empty() {
-            return 0;
-        }
-        let mut max = 0;
-        let mut stack = vec![(0usize, 1usize)];
-        while let Some((i, d)) = stack.pop() {
-            let n = self.node(i as u32);
-            if n.is_leaf() {
-                max = max.max(d);
-            } else {
-                stack.push((n.index as usize, d + 1));
-                stack.push((n.index as usize + 1, d + 1));
-            }
-        }
-        max
+        self.depth as usize
     }
 
     pub(crate) fn stats(&self) -> AccelStats {
@@ -254,6 +246,7 @@ impl Bvh {
         let nodes = self.nodes();
         let mut seen = vec![false; boxes.len()];
         let mut stack = vec![(0usize, 1usize)];
+        let mut deepest = 0;
         while let Some((i, depth)) = stack.pop() {
             if depth > STACK_SIZE {
                 return Err(format!("depth {depth} exceeds the traversal stack"));
@@ -261,6 +254,7 @@ impl Bvh {
             let n = nodes.get(i).ok_or(format!("node {i} out of range"))?;
             let b = n.bounds();
             if n.is_leaf() {
+                deepest = deepest.max(depth);
                 let range = n.index as usize..(n.index + n.count) as usize;
                 for &p in self.prim_ids.get(range).ok_or("leaf range out of range")? {
                     let p = p as usize;
@@ -285,6 +279,9 @@ impl Bvh {
                 }
             }
         }
+        if deepest != self.depth() {
+            return Err(format!("depth {} recorded, {deepest} walked", self.depth()));
+        }
         match seen.iter().position(|s| !s) {
             Some(p) => Err(format!("primitive {p} in no leaf")),
             None => Ok(()),
@@ -301,8 +298,29 @@ impl Bvh {
     /// Closest-first traversal calling `block(first, count)` for each leaf
     /// reached, with its slots in the primitive permutation; it returns the
     /// ray's new upper bound (`-inf` stops).
+    ///
+    /// The stack holds at most one node a level below the root, so a tree
+    /// of at most [`SHALLOW`] levels (most are) walks with a stack of that
+    /// many entries: set up per ray, [`STACK_SIZE`]'s 768 bytes were a
+    /// `memset` call a ray (63 instructions on bunny00's random rays).
     #[inline]
     pub(crate) fn traverse_blocks<C: RayCounter>(
+        &self,
+        ray: &Ray,
+        counter: &mut C,
+        block: &mut impl FnMut(u32, u32) -> f32,
+    ) {
+        if self.depth() <= SHALLOW {
+            self.walk_blocks::<SHALLOW, C>(ray, counter, block);
+        } else {
+            self.walk_blocks::<STACK_SIZE, C>(ray, counter, block);
+        }
+    }
+
+    /// [`Self::traverse_blocks`] with a stack of `N` entries (`N` at least
+    /// the tree's depth).
+    #[inline(always)]
+    fn walk_blocks<const N: usize, C: RayCounter>(
         &self,
         ray: &Ray,
         counter: &mut C,
@@ -318,7 +336,7 @@ impl Bvh {
         if entry > exit {
             return;
         }
-        let mut stack = [(0u32, 0.0f32); STACK_SIZE];
+        let mut stack = [(0u32, 0.0f32); N];
         let mut sp = 0usize;
         let mut node = root;
         loop {
