@@ -35,7 +35,9 @@ pub use grid::Grid;
 pub use instance::{Instance, Instances, PACKET_INSTANCES};
 pub use kdtree::KdTree;
 pub use packet::{Packet8, LANES};
-pub use prims::{PrimHit, Primitives, Shape, Shapes, Spheres, TriangleMesh, Triangles, BLOCK};
+pub use prims::{
+    BlockHits, PrimHit, Primitives, Shape, Shapes, Spheres, TriangleMesh, Triangles, BLOCK,
+};
 pub use raymesh_geometry::{Aabb, Ray, Vec3};
 pub use scene::{Hit, Scene, Surface};
 pub use simd::set_simd_enabled;

@@ -16,6 +16,39 @@ pub struct PrimHit {
     pub v: f32,
 }
 
+/// What a block test ([`Primitives::intersect_block`]) finds, lane by
+/// lane, as structure-of-arrays: a SIMD kernel hands back its three result
+/// registers as they are, with no array to clear first and no scatter into
+/// [`PrimHit`]s. Only the lanes of the mask returned beside it hold hits.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct BlockHits {
+    /// Ray parameter of each lane's hit.
+    pub t: [f32; BLOCK],
+    /// First surface coordinate of each lane's hit.
+    pub u: [f32; BLOCK],
+    /// Second surface coordinate of each lane's hit.
+    pub v: [f32; BLOCK],
+}
+
+impl BlockHits {
+    /// The hit of lane `k`.
+    #[inline(always)]
+    #[must_use]
+    pub fn get(&self, k: usize) -> PrimHit {
+        PrimHit {
+            t: self.t[k],
+            u: self.u[k],
+            v: self.v[k],
+        }
+    }
+
+    /// Writes `h` to lane `k`.
+    #[inline(always)]
+    pub fn set(&mut self, k: usize, h: PrimHit) {
+        (self.t[k], self.u[k], self.v[k]) = (h.t, h.u, h.v);
+    }
+}
+
 /// A set of primitives addressed by `u32` index: what a structure is built over.
 pub trait Primitives: Send + Sync {
     /// Number of primitives.
@@ -29,20 +62,16 @@ pub trait Primitives: Send + Sync {
     /// Ray test of primitive `i` over `[ray.tmin, tmax]` (both ends included).
     fn intersect(&self, i: u32, ray: &Ray, tmax: f32) -> Option<PrimHit>;
     /// Tests primitives `first..first + count` (`count` at most [`BLOCK`])
-    /// as [`Self::intersect`] would, each against the same `tmax`: writes
-    /// the hit of lane `k` to `out[k]` and returns a mask of the lanes hit.
+    /// as [`Self::intersect`] would, each against the same `tmax`: returns
+    /// a mask of the lanes hit and their hits (lane `k` is primitive
+    /// `first + k`).
     /// Leaves of wide BVHs call it, so primitive types with a SIMD test
     /// (see [`Triangles`]) test a leaf at once; the default loops.
     #[inline]
-    fn intersect_block(
-        &self,
-        first: u32,
-        count: u32,
-        ray: &Ray,
-        tmax: f32,
-        out: &mut [PrimHit; BLOCK],
-    ) -> u32 {
-        intersect_each(self, first, 0..count.min(BLOCK as u32), ray, tmax, out)
+    fn intersect_block(&self, first: u32, count: u32, ray: &Ray, tmax: f32) -> (u32, BlockHits) {
+        let mut out = BlockHits::default();
+        let mask = intersect_each(self, first, 0..count.min(BLOCK as u32), ray, tmax, &mut out);
+        (mask, out)
     }
     /// Whether [`Self::intersect_block`] tests a block at once (a SIMD
     /// kernel) rather than one by one: then a binary BVH's SAH counts its
@@ -98,12 +127,12 @@ fn intersect_each<P: Primitives + ?Sized>(
     lanes: impl Iterator<Item = u32>,
     ray: &Ray,
     tmax: f32,
-    out: &mut [PrimHit; BLOCK],
+    out: &mut BlockHits,
 ) -> u32 {
     let mut mask = 0;
     for k in lanes {
         if let Some(h) = prims.intersect(first + k, ray, tmax) {
-            out[k as usize] = h;
+            out.set(k as usize, h);
             mask |= 1 << k;
         }
     }
@@ -325,30 +354,26 @@ impl Primitives for Triangles {
         })
     }
     #[inline(always)]
-    fn intersect_block(
-        &self,
-        first: u32,
-        count: u32,
-        ray: &Ray,
-        tmax: f32,
-        out: &mut [PrimHit; BLOCK],
-    ) -> u32 {
+    fn intersect_block(&self, first: u32, count: u32, ray: &Ray, tmax: f32) -> (u32, BlockHits) {
         let count = (count as usize).min(BLOCK);
         let first = first as usize;
         assert!(first + count <= self.len);
         #[cfg(target_arch = "x86_64")]
         if crate::simd::has_avx2() {
-            let (mask, redo) =
-                crate::simd::triangles8(&self.data, self.stride(), first, count, ray, tmax, out);
+            let (mask, redo, mut out) =
+                crate::simd::triangles8(&self.data, self.stride(), first, count, ray, tmax);
             if redo == 0 {
-                return mask;
+                return (mask, out);
             }
             // Lanes whose edge function rounded to zero take the scalar
             // test's f64 path.
             let lanes = (0..count as u32).filter(|k| redo >> k & 1 != 0);
-            return mask | intersect_each(self, first as u32, lanes, ray, tmax, out);
+            let more = intersect_each(self, first as u32, lanes, ray, tmax, &mut out);
+            return (mask | more, out);
         }
-        intersect_each(self, first as u32, 0..count as u32, ray, tmax, out)
+        let mut out = BlockHits::default();
+        let mask = intersect_each(self, first as u32, 0..count as u32, ray, tmax, &mut out);
+        (mask, out)
     }
     #[inline(always)]
     fn intersect_packet(
@@ -471,15 +496,8 @@ impl<P: Primitives + ?Sized> Primitives for &P {
         (**self).intersect(i, ray, tmax)
     }
     #[inline(always)]
-    fn intersect_block(
-        &self,
-        first: u32,
-        count: u32,
-        ray: &Ray,
-        tmax: f32,
-        out: &mut [PrimHit; BLOCK],
-    ) -> u32 {
-        (**self).intersect_block(first, count, ray, tmax, out)
+    fn intersect_block(&self, first: u32, count: u32, ray: &Ray, tmax: f32) -> (u32, BlockHits) {
+        (**self).intersect_block(first, count, ray, tmax)
     }
     fn normal(&self, i: u32, ray: &Ray, hit: &PrimHit) -> Vec3 {
         (**self).normal(i, ray, hit)

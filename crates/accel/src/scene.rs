@@ -206,18 +206,20 @@ impl<P: Primitives> Scene<P> {
         tmax: &mut f32,
         best: &mut Option<(u32, PrimHit)>,
     ) {
-        for start in (first..first + count).step_by(BLOCK) {
-            let n = (first + count - start).min(BLOCK as u32);
-            let mut hits = [PrimHit::default(); BLOCK];
-            let mut mask = self.prims.intersect_block(start, n, ray, *tmax, &mut hits);
+        // A plain loop: `step_by` cost 14 instructions a leaf, and wide
+        // leaves are one block.
+        let (mut start, end) = (first, first + count);
+        while start < end {
+            let n = (end - start).min(BLOCK as u32);
+            let (mut mask, hits) = self.prims.intersect_block(start, n, ray, *tmax);
             while mask != 0 {
-                let k = mask.trailing_zeros();
+                let k = mask.trailing_zeros() as usize;
                 mask &= mask - 1;
-                let h = hits[k as usize];
-                if h.t <= *tmax {
-                    self.offer(best, tmax, start + k, h);
+                if hits.t[k] <= *tmax {
+                    self.offer(best, tmax, start + k as u32, hits.get(k));
                 }
             }
+            start += BLOCK as u32;
         }
     }
 
@@ -225,16 +227,15 @@ impl<P: Primitives> Scene<P> {
     /// the ray's interval: the least slot of the first block hit.
     #[inline(always)]
     fn leaf_any(&self, ray: &Ray, first: u32, count: u32) -> Option<(u32, PrimHit)> {
-        for start in (first..first + count).step_by(BLOCK) {
-            let n = (first + count - start).min(BLOCK as u32);
-            let mut hits = [PrimHit::default(); BLOCK];
-            let mask = self
-                .prims
-                .intersect_block(start, n, ray, ray.tmax(), &mut hits);
+        let (mut start, end) = (first, first + count);
+        while start < end {
+            let n = (end - start).min(BLOCK as u32);
+            let (mask, hits) = self.prims.intersect_block(start, n, ray, ray.tmax());
             if mask != 0 {
                 let k = mask.trailing_zeros();
-                return Some((start + k, hits[k as usize]));
+                return Some((start + k, hits.get(k as usize)));
             }
+            start += BLOCK as u32;
         }
         None
     }

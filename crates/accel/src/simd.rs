@@ -10,7 +10,7 @@
 #![allow(unsafe_code)]
 
 use crate::bvh::{BoxRay, Bvh, NodePair, PairRay, WideNode};
-use crate::PrimHit;
+use crate::BlockHits;
 use raymesh_geometry::Ray;
 
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -425,8 +425,7 @@ pub(crate) fn triangles8(
     count: usize,
     ray: &Ray,
     tmax: f32,
-    out: &mut [PrimHit; 8],
-) -> (u32, u32) {
+) -> (u32, u32, BlockHits) {
     // Row 8's lanes end at 8 * stride + first + 8, inside 9 * stride.
     assert!(first + 8 <= stride && 9 * stride <= data.len());
     assert!(cpu_has_avx2());
@@ -435,37 +434,16 @@ pub(crate) fn triangles8(
     } else {
         (1u32 << count) - 1
     };
-    let (mut t, mut u, mut v) = ([0.0f32; 8], [0.0f32; 8], [0.0f32; 8]);
     // SAFETY: lanes `first..first + 8` of each of the 9 rows lie inside
-    // `data` (asserted), the outputs are 8 floats, and the CPU has AVX2
-    // (asserted).
-    let (hit, redo) = unsafe {
-        triangles8_avx(
-            data.as_ptr().add(first),
-            stride,
-            ray,
-            tmax,
-            [t.as_mut_ptr(), u.as_mut_ptr(), v.as_mut_ptr()],
-        )
-    };
+    // `data` (asserted), and the CPU has AVX2 (asserted).
+    let (hit, redo, out) = unsafe { triangles8_avx(data.as_ptr().add(first), stride, ray, tmax) };
     let (hit, redo) = (hit & active, redo & active);
-    let mut m = hit;
-    while m != 0 {
-        let k = m.trailing_zeros() as usize;
-        m &= m - 1;
-        out[k] = PrimHit {
-            t: t[k],
-            u: u[k],
-            v: v[k],
-        };
-    }
-    (hit & !redo, redo)
+    (hit & !redo, redo, out)
 }
 
 /// # Safety
 /// The CPU must have AVX; `rows.add(r * stride)` must address 8 readable
-/// floats for each row `r` in `0..9`, and each output pointer 8 writable
-/// ones.
+/// floats for each row `r` in `0..9`.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
@@ -474,8 +452,7 @@ unsafe fn triangles8_avx(
     stride: usize,
     ray: &Ray,
     tmax: f32,
-    out: [*mut f32; 3],
-) -> (u32, u32) {
+) -> (u32, u32, BlockHits) {
     use std::arch::x86_64::*;
     let (s, [kx, ky, kz]) = ray.shear();
     let o = ray.permute(ray.origin());
@@ -551,12 +528,17 @@ unsafe fn triangles8_avx(
             ),
         ),
     );
-    _mm256_storeu_ps(out[0], t);
-    _mm256_storeu_ps(out[1], _mm256_mul_ps(v, inv_det));
-    _mm256_storeu_ps(out[2], _mm256_mul_ps(w, inv_det));
+    // The registers as they are: `__m256` and `[f32; 8]` have the same
+    // size, and every bit pattern is a valid float.
+    let lanes = |x: __m256| std::mem::transmute::<__m256, [f32; 8]>(x);
     (
         _mm256_movemask_ps(ok) as u32,
         _mm256_movemask_ps(redo) as u32,
+        BlockHits {
+            t: lanes(t),
+            u: lanes(_mm256_mul_ps(v, inv_det)),
+            v: lanes(_mm256_mul_ps(w, inv_det)),
+        },
     )
 }
 
@@ -677,9 +659,8 @@ mod tests {
             let corners: Vec<[Vec3; 3]> = tris[..len].iter().map(|&(a, b, c)| [a, b, c]).collect();
             let tris = crate::Triangles::from_corners(&corners);
             let ray = Ray::new(o, d, tmin, f32::INFINITY);
-            let mut out = [PrimHit::default(); 8];
-            let mask = crate::Primitives::intersect_block(
-                &tris, first as u32, count as u32, &ray, tmax, &mut out,
+            let (mask, out) = crate::Primitives::intersect_block(
+                &tris, first as u32, count as u32, &ray, tmax,
             );
             for k in 0..8 {
                 let want = if k < count {
@@ -690,7 +671,7 @@ mod tests {
                 };
                 prop_assert_eq!(mask >> k & 1 != 0, want.is_some(), "lane {}", k);
                 if let Some(w) = want {
-                    let h = out[k];
+                    let h = out.get(k);
                     prop_assert_eq!(
                         (h.t.to_bits(), h.u.to_bits(), h.v.to_bits()),
                         (w.t.to_bits(), w.u.to_bits(), w.v.to_bits()),

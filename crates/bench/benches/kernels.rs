@@ -9,8 +9,8 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use raymesh::workload::SplitMix;
 use raymesh_accel::bvh::{BoxRay, Node8};
 use raymesh_accel::{
-    set_simd_enabled, Aabb, AccelKind, PrimHit, Primitives, Ray, Scene, Surface, TriangleMesh,
-    Triangles, Vec3, BLOCK,
+    set_simd_enabled, Aabb, AccelKind, Primitives, Ray, Scene, Surface, TriangleMesh, Triangles,
+    Vec3,
 };
 use raymesh_geometry::intersect_triangle;
 use std::hint::black_box;
@@ -95,11 +95,10 @@ fn kernels(c: &mut Criterion) {
             },
         );
         c.bench_function(&format!("triangle block of 8, {tag} (256 rays)"), |b| {
-            let mut out = [PrimHit::default(); BLOCK];
             b.iter(|| {
                 let mut mask = 0;
                 for r in &rays {
-                    mask ^= black_box(&block).intersect_block(0, 8, r, f32::INFINITY, &mut out);
+                    mask ^= black_box(&block).intersect_block(0, 8, r, f32::INFINITY).0;
                 }
                 mask
             });
