@@ -115,6 +115,19 @@ impl Aabb {
         0.5 * (self.min + self.max)
     }
 
+    /// The parts of the box on each side of the plane `axis = pos`: the box
+    /// cut to `[min, pos]` and to `[pos, max]` on that axis (empty on a side
+    /// the box does not reach). The spatial-split builder clips primitives
+    /// it knows only by their boxes this way; a NaN `pos` cuts nothing.
+    #[inline]
+    #[must_use]
+    pub fn split(self, axis: usize, pos: f32) -> (Self, Self) {
+        let (mut left, mut right) = (self, self);
+        left.max[axis] = min_nan_second(pos, left.max[axis]);
+        right.min[axis] = max_nan_second(pos, right.min[axis]);
+        (left, right)
+    }
+
     /// Surface area; zero for the empty box. SAH builders use it (MacDonald & Booth 1990).
     #[inline]
     #[must_use]

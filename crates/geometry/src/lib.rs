@@ -20,4 +20,4 @@ pub use glam::{Mat3, Mat4, Quat, Vec2, Vec3, Vec3A};
 pub use octahedral::{decode_unit, encode_unit, ZERO_UNIT};
 pub use ray::Ray;
 pub use sphere::{intersect_sphere, Sphere, SphereHit};
-pub use triangle::{intersect_triangle, triangle_area2, TriHit, Triangle};
+pub use triangle::{clip_triangle, intersect_triangle, triangle_area2, TriHit, Triangle};

@@ -1,6 +1,6 @@
 //! Watertight ray–triangle intersection (Woop, Benthin & Wald, JCGT 2013).
 
-use crate::Ray;
+use crate::{next_down, next_up, Aabb, Ray};
 use glam::Vec3;
 
 /// A triangle given by its three corners.
@@ -52,6 +52,52 @@ impl Triangle {
     pub fn intersect(&self, ray: &Ray, tmax: f32) -> Option<TriHit> {
         intersect_triangle(ray, tmax, self.v[0], self.v[1], self.v[2])
     }
+}
+
+/// The boxes of the parts of triangle `corners` inside `within` on each
+/// side of the plane `axis = pos`, as a spatial-split BVH builder needs
+/// them (Stich, Friedrich & Dietrich, "Spatial splits in bounding volume
+/// hierarchies", 2009): each side's box holds the corners on that side and
+/// the points where the edges cross the plane, and is then cut to `within`
+/// and to its side. An empty box means no part lies on that side.
+///
+/// Conservative, so that a BVH built from the parts misses no hit: a
+/// crossing is computed in `f64` and widened by its error bound before it
+/// is rounded outward to `f32`, so every point of the triangle inside
+/// `within` lies in the box of its side (both boxes, on the plane).
+#[must_use]
+pub fn clip_triangle(corners: [Vec3; 3], within: Aabb, axis: usize, pos: f32) -> (Aabb, Aabb) {
+    let (mut left, mut right) = (Aabb::EMPTY, Aabb::EMPTY);
+    let p = f64::from(pos);
+    for i in 0..3 {
+        let (a, b) = (corners[i], corners[(i + 1) % 3]);
+        let (da, db) = (f64::from(a[axis]), f64::from(b[axis]));
+        if da <= p {
+            left = left.grow(a);
+        }
+        if da >= p {
+            right = right.grow(a);
+        }
+        if (da < p && p < db) || (db < p && p < da) {
+            // The crossing a + (b - a) s, s = (p - da) / (db - da) in [0, 1]:
+            // a handful of f64 roundings, each at most ε times the larger
+            // of the corners' coordinates.
+            let s = (p - da) / (db - da);
+            let (mut lo, mut hi) = (Vec3::ZERO, Vec3::ZERO);
+            for k in 0..3 {
+                let (ak, bk) = (f64::from(a[k]), f64::from(b[k]));
+                let x = ak + (bk - ak) * s;
+                let err = ak.abs().max(bk.abs()) * 8.0 * f64::EPSILON;
+                lo[k] = next_down((x - err) as f32);
+                hi[k] = next_up((x + err) as f32);
+            }
+            (lo[axis], hi[axis]) = (pos, pos);
+            left = left.grow(lo).grow(hi);
+            right = right.grow(lo).grow(hi);
+        }
+    }
+    let (wl, wr) = within.split(axis, pos);
+    (left.intersection(wl), right.intersection(wr))
 }
 
 /// Twice the area of a triangle, computed in f64 so that tiny triangles far
@@ -125,6 +171,94 @@ pub fn intersect_triangle(ray: &Ray, tmax: f32, p0: Vec3, p1: Vec3, p2: Vec3) ->
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    /// Whether the f64 point `p` lies in `b` (closed).
+    fn holds(b: Aabb, p: glam::DVec3) -> bool {
+        !b.is_empty() && p.cmpge(b.min.as_dvec3()).all() && p.cmple(b.max.as_dvec3()).all()
+    }
+
+    fn clip_coord() -> impl Strategy<Value = f32> {
+        prop_oneof![
+            -4.0f32..4.0,
+            -1e6f32..1e6,
+            (-8i32..8).prop_map(|k| k as f32 * 0.5)
+        ]
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(3000))]
+        /// Every point of the triangle inside `within` lies in the box of
+        /// its side of the plane (checked in f64 on a grid of barycentric
+        /// points, the corners, and points on the edges), and each box
+        /// stays inside `within` and on its side.
+        #[test]
+        fn clipped_boxes_hold_the_triangle(
+            c in proptest::array::uniform9(clip_coord()),
+            cut in proptest::array::uniform6(0.0f32..1.0),
+            axis in 0usize..3, at in 0.0f32..1.0, edge_plane in any::<bool>(),
+        ) {
+            let corners = [
+                Vec3::new(c[0], c[1], c[2]), Vec3::new(c[3], c[4], c[5]), Vec3::new(c[6], c[7], c[8]),
+            ];
+            let full = Triangle { v: corners }.bounds();
+            // A sub-box of the triangle's box, as a reference clipped before.
+            let lerp = |lo: f32, hi: f32, f: f32| lo + (hi - lo) * f;
+            let mut within = full;
+            for k in 0..3 {
+                let (f, g) = (cut[2 * k].min(cut[2 * k + 1]) * 0.5, 0.5 + cut[2 * k].max(cut[2 * k + 1]) * 0.5);
+                within.min[k] = lerp(full.min[k], full.max[k], f);
+                within.max[k] = lerp(full.min[k], full.max[k], g).max(within.min[k]);
+            }
+            // A plane through the box, or through a corner.
+            let pos = if edge_plane { corners[1][axis] } else { lerp(within.min[axis], within.max[axis], at) };
+            let (l, r) = clip_triangle(corners, within, axis, pos);
+            let (wl, wr) = within.split(axis, pos);
+            prop_assert!(l.is_empty() || (wl.union(l) == wl), "left {l:?} outside {wl:?}");
+            prop_assert!(r.is_empty() || (wr.union(r) == wr), "right {r:?} outside {wr:?}");
+            let [a, b, cc] = corners.map(|v| v.as_dvec3());
+            let n = 24;
+            for i in 0..=n {
+                for j in 0..=n - i {
+                    let (u, v) = (f64::from(i) / f64::from(n), f64::from(j) / f64::from(n));
+                    let p = a + (b - a) * u + (cc - a) * v;
+                    if !holds(within, p) {
+                        continue;
+                    }
+                    let side = p[axis];
+                    if side <= f64::from(pos) {
+                        prop_assert!(holds(l, p), "{p:?} not in left {l:?}");
+                    }
+                    if side >= f64::from(pos) {
+                        prop_assert!(holds(r, p), "{p:?} not in right {r:?}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn clip_of_a_triangle_across_a_plane() {
+        // The triangle (0,0,0) (4,0,0) (0,4,0) cut at x = 1: left keeps
+        // x in [0, 1] and the whole height; right has x in [1, 4] and
+        // y up to 3 (where the hypotenuse crosses x = 1).
+        let t = [
+            Vec3::ZERO,
+            Vec3::new(4.0, 0.0, 0.0),
+            Vec3::new(0.0, 4.0, 0.0),
+        ];
+        let whole = Triangle { v: t }.bounds();
+        let (l, r) = clip_triangle(t, whole, 0, 1.0);
+        assert_eq!((l.min.x, l.max.x, l.min.y), (0.0, 1.0, 0.0));
+        assert!((l.max.y - 4.0).abs() < 1e-5);
+        assert_eq!((r.min.x, r.max.x, r.min.y), (1.0, 4.0, 0.0));
+        assert!((r.max.y - 3.0).abs() < 1e-5 && r.max.y >= 3.0);
+        // A plane the triangle does not reach leaves one side empty.
+        let (l, r) = clip_triangle(t, whole, 2, 1.0);
+        assert!(r.is_empty() && l == whole);
+        // The box fallback cuts the box itself.
+        let (l, r) = whole.split(1, 1.0);
+        assert_eq!((l.max.y, r.min.y), (1.0, 1.0));
+    }
 
     fn tri() -> [Vec3; 3] {
         [Vec3::ZERO, Vec3::X, Vec3::Y]

@@ -179,6 +179,28 @@ impl Bin {
 /// Scratch bins of the binned builder: [`MAX_BINS`] per axis.
 type Bins = Vec<Bin>;
 
+/// How [`Ctx::bin_all`] binned a node's centroids: bins per axis, and
+/// the map from a centroid to its bin (`(c - min) * scale`, floored).
+#[derive(Clone, Copy, Debug)]
+struct Binning {
+    nb: usize,
+    min: Vec3,
+    scale: Vec3,
+    /// Extent of the centroid box.
+    ext: Vec3,
+}
+
+/// The cheapest object split [`Ctx::best_object`] found: its SAH cost
+/// (unscaled by the node's area), axis, first bin of the right side, and
+/// how many primitives go left.
+#[derive(Clone, Copy, Debug)]
+struct ObjectSplit {
+    cost: f32,
+    axis: usize,
+    boundary: usize,
+    left: u32,
+}
+
 fn new_bins() -> Bins {
     vec![Bin::EMPTY; 3 * MAX_BINS]
 }
@@ -521,6 +543,26 @@ impl Ctx<'_> {
         bounds: Aabb,
         cb: Aabb,
     ) -> Option<usize> {
+        let binning = self.bin_all(bins, ids, cb);
+        let best = self.best_object(bins, &binning, ids.len());
+        self.decide(
+            ids,
+            cb,
+            best.map(|b| (b.cost, b.axis)),
+            bounds.half_area(),
+            |ids| {
+                let best = best.expect("a split was found");
+                let mid = self.object_partition(ids, &binning, best.axis, best.boundary);
+                // The split moves exactly the primitives the bins counted.
+                assert_eq!(mid, best.left as usize, "partition disagrees with the bins");
+                mid
+            },
+        )
+    }
+
+    /// Bins the centroids of `ids` (in the centroid box `cb`) on all three
+    /// axes into `bins`, in parallel chunks for many primitives.
+    fn bin_all(&self, bins: &mut Bins, ids: &[PrimRef], cb: Aabb) -> Binning {
         // Small nodes need few bins: 4 + n/20, as Embree's binned builder
         // does (Wald 2007 bins every node alike). Most nodes are small, and
         // sweeping 32 bins on three axes cost them more than binning
@@ -550,12 +592,24 @@ impl Ctx<'_> {
                 });
             bins.copy_from_slice(&merged);
         }
-        // (cost, axis, first bin of the right side); costs are finite or
-        // NaN, and a NaN never wins.
-        let (mut best_cost, mut best_axis, mut best_bin, mut best_left) = (f32::INFINITY, 0, 0, 0);
+        Binning {
+            nb,
+            min: cb.min,
+            scale,
+            ext,
+        }
+    }
+
+    /// The cheapest bin boundary of `bins` (filled by [`Self::bin_all`]
+    /// over `n` primitives), if any splits them.
+    fn best_object(&self, bins: &Bins, binning: &Binning, n: usize) -> Option<ObjectSplit> {
+        let nb = binning.nb;
+        // Costs are finite or NaN, and a NaN never wins.
+        let mut best: Option<ObjectSplit> = None;
+        let mut best_cost = f32::INFINITY;
         let mut right_area = [0.0f32; MAX_BINS];
         for axis in 0..3 {
-            if !(ext[axis] > 0.0) {
+            if !(binning.ext[axis] > 0.0) {
                 continue;
             }
             let bins = &bins[axis * MAX_BINS..(axis + 1) * MAX_BINS];
@@ -567,36 +621,41 @@ impl Ctx<'_> {
             let mut left = Bin::EMPTY;
             for b in 1..nb {
                 left = left.merge(bins[b - 1]);
-                let (lcount, rcount) = (left.count, ids.len() as u32 - left.count);
+                let (lcount, rcount) = (left.count, n as u32 - left.count);
                 if lcount == 0 || rcount == 0 {
                     continue;
                 }
                 let cost = left.half_area() * self.blocks(lcount as usize)
                     + right_area[b] * self.blocks(rcount as usize);
                 if cost < best_cost {
-                    (best_cost, best_axis, best_bin, best_left) = (cost, axis, b, lcount);
+                    best_cost = cost;
+                    best = Some(ObjectSplit {
+                        cost,
+                        axis,
+                        boundary: b,
+                        left: lcount,
+                    });
                 }
             }
         }
-        let best = (best_cost < f32::INFINITY).then_some((best_cost, best_axis, best_bin));
-        self.decide(
-            ids,
-            cb,
-            best.map(|(c, a, _)| (c, a)),
-            bounds.half_area(),
-            |ids| {
-                let (_, axis, boundary) = best.expect("a split was found");
-                // `bin3(c)[axis] < boundary` on one axis, without the
-                // float-to-integer conversion: the bin is the floor of `f`
-                // (clamped to the last bin, at or past any boundary), and a
-                // NaN `f` goes to bin 0, on the left, as `!(f >= b)` does.
-                let (lo, s, b) = (cb.min[axis], scale[axis], boundary as f32);
-                let mid = par_partition(ids, |r| !((r.centroid()[axis] - lo) * s >= b));
-                // The split moves exactly the primitives the bins counted.
-                assert_eq!(mid, best_left as usize, "partition disagrees with the bins");
-                mid
-            },
-        )
+        best
+    }
+
+    /// Moves the primitives of `ids` whose centroid bins below `boundary`
+    /// on `axis` to the front; returns how many there are.
+    fn object_partition(
+        &self,
+        ids: &mut [PrimRef],
+        binning: &Binning,
+        axis: usize,
+        boundary: usize,
+    ) -> usize {
+        // `bin3(c)[axis] < boundary` on one axis, without the
+        // float-to-integer conversion: the bin is the floor of `f`
+        // (clamped to the last bin, at or past any boundary), and a
+        // NaN `f` goes to bin 0, on the left, as `!(f >= b)` does.
+        let (lo, s, b) = (binning.min[axis], binning.scale[axis], boundary as f32);
+        par_partition(ids, |r| !((r.centroid()[axis] - lo) * s >= b))
     }
 
     /// Counts `ids` into the first `nb` bins of each axis of `bins` (the
