@@ -30,7 +30,7 @@ mod test_util;
 
 pub use accel::{Accel, AccelKind, BuildConfig};
 pub use brute::{BoundedList, BruteForce};
-pub use bvh::{Bvh, Bvh4, Bvh8, BvhBuilder};
+pub use bvh::{Bvh, Bvh4, Bvh8, BvhBuilder, Clip};
 pub use grid::Grid;
 pub use instance::{Instance, Instances, PACKET_INSTANCES};
 pub use kdtree::KdTree;

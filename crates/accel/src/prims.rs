@@ -1,7 +1,9 @@
 //! What structures index: primitives with bounds and a ray test.
 
 use crate::packet::{self, Packet8, LANES};
-use raymesh_geometry::{intersect_sphere, intersect_triangle, Aabb, Ray, Sphere, Vec3};
+use raymesh_geometry::{
+    clip_triangle, intersect_sphere, intersect_triangle, Aabb, Ray, Sphere, Vec3,
+};
 use rayon::prelude::*;
 
 /// Hit of one primitive: distance and two surface coordinates (barycentric
@@ -59,6 +61,14 @@ pub trait Primitives: Send + Sync {
     }
     /// Bounding box of primitive `i`.
     fn bounds(&self, i: u32) -> Aabb;
+    /// The boxes of primitive `i`'s part inside `within` on each side of
+    /// the plane `axis = pos`, for BVHs with spatial splits (see
+    /// [`crate::Clip`], whose contract this is). The default cuts `within`
+    /// itself, which is always valid; triangles clip their own shape.
+    fn clip(&self, i: u32, within: Aabb, axis: usize, pos: f32) -> (Aabb, Aabb) {
+        let _ = i;
+        within.split(axis, pos)
+    }
     /// Ray test of primitive `i` over `[ray.tmin, tmax]` (both ends included).
     fn intersect(&self, i: u32, ray: &Ray, tmax: f32) -> Option<PrimHit>;
     /// Tests primitives `first..first + count` (`count` at most [`BLOCK`])
@@ -103,7 +113,8 @@ pub trait Primitives: Send + Sync {
     /// Unit geometric normal of primitive `i` at a hit (not flipped toward the ray).
     fn normal(&self, i: u32, ray: &Ray, hit: &PrimHit) -> Vec3;
     /// Puts the primitives in another order, in place: new primitive `k`
-    /// is old primitive `order[k]`. A scene built over a BVH uses it to
+    /// is old primitive `order[k]` (`order` may name a primitive more than
+    /// once, as a BVH with spatial splits does, and then holds more). A scene built over a BVH uses it to
     /// store primitives in leaf order and drop the permutation's
     /// indirection. Returns whether it did; `false` (the default, for types
     /// that cannot) keeps the indirection.
@@ -213,6 +224,9 @@ impl Primitives for TriangleMesh {
         out: &mut [PrimHit; LANES],
     ) -> u32 {
         packet::triangle(packet, self.corners(i), lanes, tmax, out)
+    }
+    fn clip(&self, i: u32, within: Aabb, axis: usize, pos: f32) -> (Aabb, Aabb) {
+        clip_triangle(self.corners(i), within, axis, pos)
     }
     fn normal(&self, i: u32, _ray: &Ray, _hit: &PrimHit) -> Vec3 {
         let [a, b, c] = self.corners(i);
@@ -386,12 +400,19 @@ impl Primitives for Triangles {
     ) -> u32 {
         packet::triangle(packet, self.corners(i), lanes, tmax, out)
     }
+    fn clip(&self, i: u32, within: Aabb, axis: usize, pos: f32) -> (Aabb, Aabb) {
+        clip_triangle(self.corners(i), within, axis, pos)
+    }
     fn normal(&self, i: u32, _ray: &Ray, _hit: &PrimHit) -> Vec3 {
         let [a, b, c] = self.corners(i);
         (b - a).cross(c - a).normalize_or_zero()
     }
     fn reorder(&mut self, order: &[u32]) -> bool {
-        assert_eq!(order.len(), self.len, "a permutation of the triangles");
+        if order.len() != self.len {
+            // Some triangles twice (spatial splits): new rows.
+            *self = Self::gather(order.len(), |k| self.corners(order[k]));
+            return true;
+        }
         // One row at a time: the copy costs one row of memory, not nine.
         let (len, stride) = (self.len, self.stride());
         for row in self.data.chunks_exact_mut(stride) {
@@ -471,6 +492,12 @@ impl Primitives for Shapes {
             }),
         }
     }
+    fn clip(&self, i: u32, within: Aabb, axis: usize, pos: f32) -> (Aabb, Aabb) {
+        match &self.0[i as usize] {
+            Shape::Triangle(corners) => clip_triangle(*corners, within, axis, pos),
+            Shape::Sphere(_) => within.split(axis, pos),
+        }
+    }
     fn normal(&self, i: u32, ray: &Ray, hit: &PrimHit) -> Vec3 {
         match &self.0[i as usize] {
             Shape::Triangle([a, b, c]) => (*b - *a).cross(*c - *a).normalize_or_zero(),
@@ -490,6 +517,9 @@ impl<P: Primitives + ?Sized> Primitives for &P {
     }
     fn bounds(&self, i: u32) -> Aabb {
         (**self).bounds(i)
+    }
+    fn clip(&self, i: u32, within: Aabb, axis: usize, pos: f32) -> (Aabb, Aabb) {
+        (**self).clip(i, within, axis, pos)
     }
     #[inline(always)]
     fn intersect(&self, i: u32, ray: &Ray, tmax: f32) -> Option<PrimHit> {

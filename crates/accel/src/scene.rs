@@ -78,7 +78,9 @@ impl<P: Primitives> Scene<P> {
         let n = prims.len();
         // A BVH's root box is the union of the primitives' boxes: the
         // scene's box, with no array of boxes made.
-        let (mut accel, bounds) = match Accel::build_bvh_by(kind, n, &|i| prims.bounds(i), config) {
+        let clip = |i, within, axis, pos| prims.clip(i, within, axis, pos);
+        let built = Accel::build_bvh_clipped(kind, n, &|i| prims.bounds(i), &clip, config);
+        let (mut accel, bounds) = match built {
             Some(a) => {
                 let b = a.bounds();
                 (a, b)
@@ -428,8 +430,9 @@ impl Scene<Triangles> {
     pub fn from_mesh_with(mesh: &TriangleMesh, kind: AccelKind, config: &BuildConfig) -> Self {
         let start = Instant::now();
         let config = &leaf_blocks::<Triangles>(kind, config);
-        let Some(mut accel) = Accel::build_bvh_by(kind, mesh.len(), &|i| mesh.bounds(i), config)
-        else {
+        let clip = |i, within, axis, pos| mesh.clip(i, within, axis, pos);
+        let built = Accel::build_bvh_clipped(kind, mesh.len(), &|i| mesh.bounds(i), &clip, config);
+        let Some(mut accel) = built else {
             let mut scene = Self::build_with(Triangles::from_mesh(mesh), kind, config);
             scene.build_ms = start.elapsed().as_secs_f64() * 1e3;
             return scene;

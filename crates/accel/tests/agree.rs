@@ -21,6 +21,17 @@ const KINDS: [AccelKind; 8] = [
     AccelKind::KdTree,
 ];
 
+/// The BVHs that take spatial splits, and a budget generous enough that
+/// small inputs split too: their leaves then hold parts of primitives,
+/// some primitives in several leaves, and must answer as brute force does.
+const SPATIAL_KINDS: [AccelKind; 3] = [AccelKind::BvhBinned, AccelKind::Bvh4, AccelKind::Bvh8];
+fn spatial() -> BuildConfig {
+    BuildConfig {
+        spatial_splits: 1.0,
+        ..BuildConfig::default()
+    }
+}
+
 /// [`hit_bits`] without the normal.
 fn key(h: Option<Hit>) -> Option<(u32, u32, u32, u32, u32)> {
     hit_bits(h).map(|(prim, instance, t, u, v, _)| (prim, instance, t, u, v))
@@ -38,18 +49,26 @@ fn check_all<P: Primitives + Clone>(prims: &P, rays: &[Ray]) -> usize {
             "brute force any-hit disagrees with closest-hit"
         );
     }
-    for kind in KINDS {
-        let s = Scene::build(prims.clone(), kind);
+    let builds = KINDS
+        .iter()
+        .map(|&k| (k, BuildConfig::default(), ""))
+        .chain(
+            SPATIAL_KINDS
+                .iter()
+                .map(|&k| (k, spatial(), " with spatial splits")),
+        );
+    for (kind, config, how) in builds {
+        let s = Scene::build_with(prims.clone(), kind, &config);
         for (i, r) in rays.iter().enumerate() {
             let got = key(s.intersect(r));
             assert_eq!(
                 got, want[i],
-                "{kind}: closest hit differs for ray {i}: {r:?}"
+                "{kind}{how}: closest hit differs for ray {i}: {r:?}"
             );
             assert_eq!(
                 s.occluded(r),
                 want_any[i],
-                "{kind}: any hit differs for ray {i}: {r:?}"
+                "{kind}{how}: any hit differs for ray {i}: {r:?}"
             );
         }
     }
@@ -69,22 +88,30 @@ fn check_mesh(m: &TriangleMesh, rays: &[Ray]) -> usize {
     assert_eq!(check_all(&tris, rays), hits);
     // Scenes gathered straight from the mesh in leaf order are the same
     // scenes, hit for hit, with the same structure.
-    for kind in KINDS {
-        let want = Scene::build(tris.clone(), kind);
-        let got = Scene::from_mesh(m, kind);
+    let builds = KINDS
+        .iter()
+        .map(|&k| (k, BuildConfig::default(), ""))
+        .chain(
+            SPATIAL_KINDS
+                .iter()
+                .map(|&k| (k, spatial(), " with spatial splits")),
+        );
+    for (kind, config, how) in builds {
+        let want = Scene::build_with(tris.clone(), kind, &config);
+        let got = Scene::from_mesh_with(m, kind, &config);
         let (ws, gs) = (want.stats(), got.stats());
         assert_eq!(
             (ws.nodes, ws.depth, ws.bytes),
             (gs.nodes, gs.depth, gs.bytes),
-            "{kind}"
+            "{kind}{how}"
         );
         for r in rays {
             assert_eq!(
                 key(got.intersect(r)),
                 key(want.intersect(r)),
-                "{kind}: {r:?}"
+                "{kind}{how}: {r:?}"
             );
-            assert_eq!(got.occluded(r), want.occluded(r), "{kind}: {r:?}");
+            assert_eq!(got.occluded(r), want.occluded(r), "{kind}{how}: {r:?}");
         }
     }
     hits

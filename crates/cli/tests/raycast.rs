@@ -106,6 +106,26 @@ fn every_structure_writes_the_same_hits() {
             reference.as_ref() == Some(&npy_data(&out)),
             "{w}: bvh8 --no-simd wrote other hits than brute force"
         );
+        // Spatial splits: parts of triangles in several leaves, the same
+        // hits; the JSON says the budget.
+        for accel in ["bvh-binned", "bvh8"] {
+            let out = dir.join(format!("{w}-{accel}-spatial.npy"));
+            let json = run_ok(
+                raymesh()
+                    .arg("raycast")
+                    .arg(&mesh)
+                    .arg("--rays")
+                    .arg(&rays)
+                    .args(["--accel", accel, "--spatial-splits", "--json", "--out"])
+                    .arg(&out),
+            );
+            let v: serde_json::Value = serde_json::from_str(&json).unwrap();
+            assert_eq!(v["spatial_splits"], 0.25, "{json}");
+            assert!(
+                reference.as_ref() == Some(&npy_data(&out)),
+                "{w}: {accel} --spatial-splits wrote other hits than brute force"
+            );
+        }
         // Packets of eight rays, and streams of rays walking the binary
         // BVHs interleaved, with and without the SIMD kernels.
         for (accel, mode, simd) in [
@@ -213,6 +233,20 @@ fn bad_inputs_are_clear_errors() {
         .unwrap();
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("unknown structure 'octree'"));
+    for bad in ["-0.5", "nan", "lots", "9"] {
+        let out = raymesh()
+            .arg("raycast")
+            .arg(&mesh)
+            .args(["--rays", "x.npy", &format!("--spatial-splits={bad}")])
+            .output()
+            .unwrap();
+        assert!(!out.status.success(), "--spatial-splits {bad} accepted");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            err.contains("--spatial-splits") && err.contains(bad),
+            "{err}"
+        );
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

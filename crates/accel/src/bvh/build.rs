@@ -2,6 +2,10 @@
 //! They share one top-down recursion and differ only in how a node's
 //! primitives are split.
 
+mod spatial;
+
+pub use spatial::Clip;
+
 use super::{Bvh, Node, NodePair};
 use crate::BuildConfig;
 use raymesh_geometry::{Aabb, Vec3, Vec3A};
@@ -274,6 +278,7 @@ impl BvhBuilder {
             pairs,
             prim_ids,
             depth,
+            parts: false,
         }
     }
 }

@@ -8,7 +8,7 @@
 mod build;
 mod wide;
 
-pub use build::BvhBuilder;
+pub use build::{BvhBuilder, Clip};
 #[cfg(test)]
 pub(crate) use wide::slab_scalar;
 pub use wide::{BoxRay, Bvh4, Bvh8, Node4, Node8, WideBvh, WideNode};
@@ -155,6 +155,9 @@ pub struct Bvh {
     prim_ids: Vec<u32>,
     /// [`Self::depth`], recorded by the builder.
     depth: u32,
+    /// Whether spatial splits built the tree: its leaves then hold parts
+    /// of primitives (see [`Self::validate`]).
+    parts: bool,
 }
 
 impl Bvh {
@@ -235,7 +238,20 @@ impl Bvh {
 
     /// Checks every invariant: children inside their parent, each primitive
     /// in exactly one leaf and inside its box, indices in range. For tests.
+    ///
+    /// A tree built with spatial splits holds parts of primitives: each
+    /// primitive must be in at least one leaf, at most once a leaf, and
+    /// overlap the box of every leaf that holds it (a part's box lies
+    /// inside the primitive's box).
     pub fn validate(&self, boxes: &[Aabb]) -> Result<(), String> {
+        let parts = self.parts;
+        if !parts && self.prim_ids.len() != boxes.len() {
+            return Err(format!(
+                "{} leaf slots for {} primitives without spatial splits",
+                self.prim_ids.len(),
+                boxes.len()
+            ));
+        }
         if boxes.is_empty() {
             return if self.pairs.is_empty() {
                 Ok(())
@@ -256,12 +272,24 @@ impl Bvh {
             if n.is_leaf() {
                 deepest = deepest.max(depth);
                 let range = n.index as usize..(n.index + n.count) as usize;
-                for &p in self.prim_ids.get(range).ok_or("leaf range out of range")? {
+                let leaf = self.prim_ids.get(range).ok_or("leaf range out of range")?;
+                for (k, &p) in leaf.iter().enumerate() {
                     let p = p as usize;
-                    if std::mem::replace(&mut seen[p], true) {
+                    let pb = *boxes.get(p).ok_or(format!("primitive {p} out of range"))?;
+                    if std::mem::replace(&mut seen[p], true) && !parts {
                         return Err(format!("primitive {p} in two leaves"));
                     }
-                    if !boxes[p].is_empty() && b.union(boxes[p]) != b {
+                    if parts {
+                        if leaf[..k].contains(&(p as u32)) {
+                            return Err(format!("primitive {p} twice in leaf {i}"));
+                        }
+                        // (Broken input, NaN or infinite corners, has no
+                        // parts to speak of: only the count is checked.)
+                        let finite = pb.min.is_finite() && pb.max.is_finite();
+                        if finite && !pb.is_empty() && !b.overlaps(&pb) {
+                            return Err(format!("leaf {i} holds primitive {p} but misses its box"));
+                        }
+                    } else if !pb.is_empty() && b.union(pb) != b {
                         return Err(format!("primitive {p} sticks out of leaf {i}"));
                     }
                 }

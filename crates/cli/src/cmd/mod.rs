@@ -10,6 +10,17 @@ pub mod render;
 pub mod scale;
 pub mod subdivide;
 
+/// Parses a non-negative, finite fraction (`--spatial-splits`): at most
+/// 4, four times as many references as primitives, far past what pays.
+pub fn parse_fraction(s: &str) -> Result<f32, String> {
+    let f: f32 = s.parse().map_err(|_| format!("'{s}' is not a number"))?;
+    if (0.0..=4.0).contains(&f) {
+        Ok(f)
+    } else {
+        Err(format!("'{s}' is not a fraction in 0..=4"))
+    }
+}
+
 /// A rayon pool of `threads` workers (all cores when `None`).
 pub fn thread_pool(threads: Option<usize>) -> anyhow::Result<rayon::ThreadPool> {
     let mut b = rayon::ThreadPoolBuilder::new();
