@@ -10,10 +10,11 @@ use embree::sys::{
     rtcAttachGeometry, rtcBuildBVH, rtcCommitGeometry, rtcCommitScene, rtcIntersect1,
     rtcIntersect1M, rtcIntersect8, rtcNewBVH, rtcNewDevice, rtcNewGeometry, rtcNewScene,
     rtcOccluded1, rtcOccluded1M, rtcReleaseBVH, rtcReleaseDevice, rtcReleaseGeometry,
-    rtcReleaseScene, rtcSetDeviceMemoryMonitorFunction, rtcSetSceneBuildQuality,
-    rtcSetSharedGeometryBuffer, rtcThreadLocalAlloc, RTCBounds, RTCBufferType, RTCBuildArguments,
-    RTCBuildFlags, RTCBuildPrimitive, RTCBuildQuality, RTCDevice, RTCFormat, RTCGeometryType,
-    RTCHit, RTCHit8, RTCRay, RTCRay8, RTCRayHit, RTCRayHit8, RTCScene, RTCThreadLocalAllocator,
+    rtcReleaseScene, rtcSetDeviceMemoryMonitorFunction, rtcSetGeometryBuildQuality,
+    rtcSetSceneBuildQuality, rtcSetSharedGeometryBuffer, rtcThreadLocalAlloc, RTCBounds,
+    RTCBufferType, RTCBuildArguments, RTCBuildFlags, RTCBuildPrimitive, RTCBuildQuality, RTCDevice,
+    RTCFormat, RTCGeometryType, RTCHit, RTCHit8, RTCRay, RTCRay8, RTCRayHit, RTCRayHit8, RTCScene,
+    RTCThreadLocalAllocator,
 };
 use raymesh_geometry::{Aabb, Vec3};
 use std::ffi::c_void;
@@ -39,11 +40,19 @@ pub struct EmbreeScene {
     pub build_ms: f64,
     /// Bytes Embree allocated while building.
     pub bytes: i64,
+    /// Built with quality high (spatial splits).
+    high: bool,
 }
 
 impl EmbreeScene {
-    /// Builds Embree's default BVH (build quality medium) with `threads` threads.
-    pub fn new(positions: &[Vec3], triangles: &[[u32; 3]], threads: usize) -> Self {
+    /// Builds Embree's default BVH (build quality medium), or its
+    /// spatial-split BVH (quality high) when `high`, with `threads` threads.
+    pub fn new(positions: &[Vec3], triangles: &[[u32; 3]], threads: usize, high: bool) -> Self {
+        let quality = if high {
+            RTCBuildQuality::HIGH
+        } else {
+            RTCBuildQuality::MEDIUM
+        };
         // Embree reads vertices 16 bytes at a time: one float of padding at the end.
         let mut vertices: Vec<f32> = positions.iter().flat_map(|p| p.to_array()).collect();
         vertices.push(0.0);
@@ -81,9 +90,10 @@ impl EmbreeScene {
                 12,
                 triangles.len(),
             );
+            rtcSetGeometryBuildQuality(geom, quality);
             rtcCommitGeometry(geom);
             let scene = rtcNewScene(device);
-            rtcSetSceneBuildQuality(scene, RTCBuildQuality::MEDIUM);
+            rtcSetSceneBuildQuality(scene, quality);
             rtcAttachGeometry(scene, geom);
             rtcReleaseGeometry(geom);
             rtcCommitScene(scene);
@@ -96,6 +106,7 @@ impl EmbreeScene {
                 indices,
                 build_ms,
                 bytes,
+                high,
             }
         }
     }
@@ -448,7 +459,9 @@ impl crate::engines::Engine for EmbreeScene {
     }
     fn sah_cost(&self) -> Option<f64> {
         // Not timed, and built only when asked: once per reported build.
-        Some(builder_sah(self.device, &self.vertices, &self.indices))
+        // `builder_sah` rebuilds the medium tree; the spatial-split tree of
+        // quality high has no counterpart there.
+        (!self.high).then(|| builder_sah(self.device, &self.vertices, &self.indices))
     }
     fn trace(
         &self,

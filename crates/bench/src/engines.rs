@@ -7,7 +7,7 @@
 //! types before the clock starts, and answers closest-hit queries with
 //! `(t, triangle index in the input)` and any-hit queries with a flag.
 
-use raymesh_accel::{AccelKind, Scene, Surface, TriangleMesh, Triangles};
+use raymesh_accel::{AccelKind, BuildConfig, Scene, Surface, TriangleMesh, Triangles};
 use raymesh_geometry::Vec3;
 use rayon::prelude::*;
 use rayon::ThreadPool;
@@ -123,11 +123,12 @@ pub const RUST_PEERS: [&str; 3] = ["obvhs", "bvh", "parry3d"];
 pub fn build(
     name: &str,
     accel: AccelKind,
+    config: &BuildConfig,
     positions: &[Vec3],
     triangles: &[[u32; 3]],
 ) -> Box<dyn Engine> {
     match name {
-        "raymesh" => Box::new(Raymesh::new(accel, positions, triangles)),
+        "raymesh" => Box::new(Raymesh::new(accel, config, positions, triangles)),
         "obvhs" => Box::new(Obvhs::new(positions, triangles)),
         "bvh" => Box::new(BvhCrate::new(positions, triangles)),
         "parry3d" => Box::new(Parry::new(positions, triangles)),
@@ -142,13 +143,18 @@ pub struct Raymesh {
 }
 
 impl Raymesh {
-    fn new(accel: AccelKind, positions: &[Vec3], triangles: &[[u32; 3]]) -> Self {
+    fn new(
+        accel: AccelKind,
+        config: &BuildConfig,
+        positions: &[Vec3],
+        triangles: &[[u32; 3]],
+    ) -> Self {
         // The mesh in raymesh's type stands for the caller's (which Embree
         // shares); making it is not part of the build. Gathering the
         // triangle rows is.
         let tm = TriangleMesh::new(positions.to_vec(), triangles.to_vec());
         let start = Instant::now();
-        let scene = Scene::from_mesh(&tm, accel);
+        let scene = Scene::from_mesh_with(&tm, accel, config);
         Self {
             scene,
             build_ms: start.elapsed().as_secs_f64() * 1e3,
@@ -524,7 +530,13 @@ mod tests {
         for file in ["elephant-with-holes.off", "double-torus-example.off"] {
             let mesh = raymesh_mesh::io::read_mesh(format!("{dir}/{file}")).expect("test mesh");
             let tris = mesh.triangles();
-            let reference = build("raymesh", AccelKind::FASTEST_BVH, &mesh.positions, &tris);
+            let reference = build(
+                "raymesh",
+                AccelKind::FASTEST_BVH,
+                &BuildConfig::default(),
+                &mesh.positions,
+                &tris,
+            );
             let scene = Scene::build(
                 TriangleMesh::new(mesh.positions.clone(), tris.clone()),
                 AccelKind::FASTEST_BVH,
@@ -542,7 +554,13 @@ mod tests {
                 };
                 // raymesh's stream mode (over a binary BVH, where it
                 // interleaves rays) gives its one-ray answers exactly.
-                let binary = build("raymesh", AccelKind::BvhBinned, &mesh.positions, &tris);
+                let binary = build(
+                    "raymesh",
+                    AccelKind::BvhBinned,
+                    &BuildConfig::default(),
+                    &mesh.positions,
+                    &tris,
+                );
                 let stream = Runner {
                     stream: true,
                     ..run
@@ -587,7 +605,13 @@ mod tests {
                         }
                         for name in RUST_PEERS {
                             let peer = pool.install(|| {
-                                build(name, AccelKind::FASTEST_BVH, &mesh.positions, &tris)
+                                build(
+                                    name,
+                                    AccelKind::FASTEST_BVH,
+                                    &BuildConfig::default(),
+                                    &mesh.positions,
+                                    &tris,
+                                )
                             });
                             let (_, got) = peer.trace(&rays, any, &run);
                             // The same triangle, and t within 1e-4 relative.

@@ -19,7 +19,7 @@ use clap::Parser;
 use engines::{Answer, Engine, Runner, RUST_PEERS};
 use raymesh::npy;
 use raymesh::workload::{make_rays, Workload};
-use raymesh_accel::{AccelKind, Scene, TriangleMesh};
+use raymesh_accel::{AccelKind, BuildConfig, Scene, TriangleMesh};
 use raymesh_mesh::io::read_mesh;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -73,6 +73,23 @@ struct Args {
     /// and any hits; the Rust peers stay one ray at a time.
     #[arg(long, conflicts_with = "packets")]
     stream: bool,
+    /// Build quality. `medium`: Embree's default builder and raymesh's
+    /// binned SAH. `high`: Embree's spatial-split builder
+    /// (`RTC_BUILD_QUALITY_HIGH`) against raymesh with spatial splits
+    /// (`BuildConfig::spatial_splits` 0.25, as `raycast --spatial-splits`);
+    /// the Rust peers have no such builder and build as they always do.
+    #[arg(long, value_enum, default_value_t = Quality::Medium)]
+    quality: Quality,
+}
+
+/// `--quality`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Quality {
+    /// Embree's default; raymesh's binned SAH.
+    Medium,
+    /// Spatial splits in both.
+    High,
 }
 
 /// One engine's build on one mesh.
@@ -82,6 +99,7 @@ struct Build {
     mesh: String,
     engine: &'static str,
     threads: usize,
+    quality: Quality,
     build_ms: f64,
     bytes_per_triangle: Option<f64>,
     /// SAH cost of the engine's tree, in raymesh's units, where known.
@@ -156,16 +174,24 @@ fn engine_names(peers: &str) -> Result<Vec<&'static str>> {
 fn build_engine(
     name: &str,
     accel: AccelKind,
+    quality: Quality,
     positions: &[raymesh_geometry::Vec3],
     triangles: &[[u32; 3]],
     threads: usize,
 ) -> Box<dyn Engine> {
     #[cfg(feature = "embree")]
     if name == "embree" {
-        return Box::new(embree_peer::EmbreeScene::new(positions, triangles, threads));
+        let high = quality == Quality::High;
+        return Box::new(embree_peer::EmbreeScene::new(
+            positions, triangles, threads, high,
+        ));
     }
     let _ = threads;
-    engines::build(name, accel, positions, triangles)
+    let config = BuildConfig {
+        spatial_splits: if quality == Quality::High { 0.25 } else { 0.0 },
+        ..BuildConfig::default()
+    };
+    engines::build(name, accel, &config, positions, triangles)
 }
 
 /// Whether two answers agree: both miss, or hit the same triangle, or at
@@ -265,7 +291,8 @@ fn main() -> Result<()> {
             for &name in &names {
                 // Best of R builds (the first of a process pays for its
                 // allocator and thread start-up); the last one is traced.
-                let build = || build_engine(name, args.accel, &mesh.positions, &tris, t);
+                let build =
+                    || build_engine(name, args.accel, args.quality, &mesh.positions, &tris, t);
                 let mut engine = pool.install(build);
                 let mut build_ms = engine.build_ms();
                 for _ in 1..args.repeat {
@@ -278,6 +305,7 @@ fn main() -> Result<()> {
                     mesh: mesh_name.clone(),
                     engine: engine.name(),
                     threads: t,
+                    quality: args.quality,
                     build_ms,
                     bytes_per_triangle: engine.bytes().map(|b| b as f64 / tris.len().max(1) as f64),
                     sah_cost: engine.sah_cost(),
@@ -370,7 +398,11 @@ fn report(builds: &[Build], traces: &[Trace], reference: &str) {
         }
         c
     });
-    println!("  build, {t} thread(s): {line}");
+    let quality = match builds[0].quality {
+        Quality::Medium => String::new(),
+        Quality::High => ", quality high".into(),
+    };
+    println!("  build, {t} thread(s){quality}: {line}");
     for case in traces.iter().filter(|tr| tr.engine == "raymesh") {
         let row: Vec<&Trace> = traces.iter().filter(|tr| tr.same_case(case)).collect();
         let (workload, query) = (&case.workload, case.query);
