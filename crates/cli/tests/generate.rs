@@ -42,6 +42,18 @@ fn generate_writes_meshes_of_the_asked_size() {
     assert_eq!(v["degenerate_triangles"], 0);
     assert_eq!(v["unreferenced_vertices"], 0);
 
+    // Slivers: exactly the asked count, none degenerate, in the 8-cube.
+    let slivers = dir.join("slivers.ply");
+    run_ok(
+        raymesh()
+            .args(["generate", "slivers", "--triangles", "500", "-o"])
+            .arg(&slivers),
+    );
+    let v = info(&slivers);
+    assert_eq!(v["triangles"], 500);
+    assert_eq!(v["degenerate_triangles"], 0);
+    assert!(v["bbox"][1][0].as_f64().unwrap() < 8.25);
+
     // The teapot keeps its triangles; the stadium is 100 times wider.
     let stadium = dir.join("stadium.off");
     run_ok(

@@ -1,11 +1,12 @@
 //! Synthetic meshes of any size, for scaling benchmarks and tests: a
-//! height-field terrain, a UV sphere, and the "teapot in a stadium" (a small
+//! height-field terrain, a UV sphere, the "teapot in a stadium" (a small
 //! dense mesh inside a large sparse one, the case where a uniform grid's
 //! one cell size fits neither; Haines, "Spline surface rendering, and
-//! what's wrong with octrees", 1988, coined the name).
+//! what's wrong with octrees", 1988, coined the name), and slivers (small
+//! triangles with long thin ones across them, the case for spatial splits).
 //!
-//! All are y-up, deterministic (no random numbers), and made of
-//! non-degenerate triangles.
+//! All are y-up, deterministic (no seeds: slivers use one fixed sequence),
+//! and made of non-degenerate triangles.
 
 use crate::IndexedMesh;
 use raymesh_geometry::{Aabb, Vec3};
@@ -179,10 +180,78 @@ pub fn teapot_in_stadium(teapot: Triangulated, stadium_triangles: usize) -> Tria
     out
 }
 
+/// Small triangles scattered through the cube `[0, 8]³`, one in twenty a
+/// long thin sliver from its corner to a far point of the cube: what
+/// architectural scenes (beams, walls, cables) do to a BVH. A sliver's box
+/// overlaps everything along it, so every object split near it leaves two
+/// overlapping children; spatial splits (`BuildConfig::spatial_splits`)
+/// cut it into parts instead. `triangles` triangles, three vertices each,
+/// from one fixed xorshift sequence.
+#[must_use]
+pub fn slivers(triangles: usize) -> Triangulated {
+    let mut s = 0x9e37_79b9_u32;
+    let mut next = move || {
+        s ^= s << 13;
+        s ^= s >> 17;
+        s ^= s << 5;
+        (s >> 8) as f32 / (1u32 << 24) as f32
+    };
+    let mut unit = move || Vec3::new(next(), next(), next());
+    let mut positions = Vec::with_capacity(3 * triangles);
+    for i in 0..triangles {
+        let a = unit() * 8.0;
+        let far = unit() * 8.0;
+        // Along the triangle: a sliver to the far point, else a step of
+        // 0.05 to 0.15 toward it; across it, a width of 0.01 to 0.05 at a
+        // right angle, so that no triangle degenerates.
+        let mut d = far - a;
+        if d.length() < 1.0 {
+            // Too near: four units along x instead, inside the cube.
+            d = Vec3::X * if a.x < 4.0 { 4.0 } else { -4.0 };
+        }
+        let along = if i % 20 == 0 {
+            d
+        } else {
+            d.normalize() * (0.05 + 0.1 * (i % 7) as f32 / 6.0)
+        };
+        let across = along.any_orthonormal_vector() * (0.01 + 0.04 * (i % 5) as f32 / 4.0);
+        positions.extend([a, a + along, a + across]);
+    }
+    let triangles = (0..triangles as u32)
+        .map(|i| [3 * i, 3 * i + 1, 3 * i + 2])
+        .collect();
+    Triangulated {
+        positions,
+        triangles,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use raymesh_geometry::triangle_area2;
+
+    #[test]
+    fn slivers_are_clean_and_one_in_twenty_is_long() {
+        let m = slivers(4000);
+        check(&m);
+        assert_eq!(m.triangles.len(), 4000);
+        let long = m
+            .triangles
+            .iter()
+            .filter(|t| {
+                let [a, b, _] = t.map(|i| m.positions[i as usize]);
+                (b - a).length() >= 1.0
+            })
+            .count();
+        assert_eq!(long, 200);
+        let b = m.bounds();
+        assert!(
+            b.min.min_element() > -0.25 && b.max.max_element() < 8.25,
+            "{b:?}"
+        );
+        assert_eq!(slivers(4000), m, "the same mesh every time");
+    }
 
     fn check(mesh: &Triangulated) {
         let n = mesh.positions.len() as u32;

@@ -1,4 +1,4 @@
-//! `raymesh generate terrain|sphere|teapot-in-stadium -o OUT [--triangles N] [--teapot MESH]`.
+//! `raymesh generate terrain|sphere|teapot-in-stadium|slivers -o OUT [--triangles N] [--teapot MESH]`.
 
 use anyhow::{bail, Result};
 use raymesh_mesh::io::{read_mesh, write_mesh, Format};
@@ -17,6 +17,10 @@ pub enum Kind {
     /// A dense mesh 2 units across on the field of a stadium 200 units
     /// across: the case a uniform grid handles worst.
     TeapotInStadium,
+    /// Small triangles scattered through a cube, one in twenty a long thin
+    /// sliver across it: the case spatial splits (`raycast
+    /// --spatial-splits`) are for.
+    Slivers,
 }
 
 /// Arguments of `raymesh generate`.
@@ -61,6 +65,7 @@ pub fn run(args: &Args) -> Result<()> {
     let mesh = match args.kind {
         Kind::Terrain => synthetic::terrain(args.triangles),
         Kind::Sphere => synthetic::uv_sphere(args.triangles, Vec3::ZERO, 1.0),
+        Kind::Slivers => synthetic::slivers(args.triangles),
         Kind::TeapotInStadium => {
             let teapot = match &args.teapot {
                 Some(path) => {
