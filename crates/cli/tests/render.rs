@@ -66,6 +66,25 @@ fn demo_and_mesh_render_without_overwriting() {
         text.contains("wrote tetrahedron-heatmap.png") && text.contains("logarithmic"),
         "{text}"
     );
+    // Spatial splits change the tree, never the image.
+    let plain = dir.join("plain.png");
+    let split = dir.join("split.png");
+    for (out, extra) in [(&plain, None), (&split, Some("--spatial-splits=1"))] {
+        let mut cmd = raymesh();
+        cmd.current_dir(&dir)
+            .arg("render")
+            .arg(data("elephant-with-holes.off"))
+            .args(small)
+            .arg("-o")
+            .arg(out);
+        cmd.args(extra);
+        let o = cmd.output().unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    assert_eq!(
+        std::fs::read(&plain).unwrap(),
+        std::fs::read(&split).unwrap()
+    );
     // Bad input: a clear error, nothing written.
     let out = raymesh()
         .current_dir(&dir)

@@ -29,6 +29,11 @@ pub struct SceneDesc {
     /// Acceleration structure (any name `raymesh raycast --accel` takes).
     #[serde(default = "default_accel")]
     pub accel: String,
+    /// Spatial splits for the meshes' binned-SAH BVHs: extra references
+    /// as a fraction of triangles, 0 (the default) for none (see
+    /// `raymesh_accel::BuildConfig::spatial_splits`).
+    #[serde(default)]
+    pub spatial_splits: f32,
     /// Most mirror bounces.
     #[serde(default = "default_depth")]
     pub max_depth: u32,

@@ -7,8 +7,8 @@ use crate::desc::{
 };
 use crate::{Camera, SceneError};
 use raymesh_accel::{
-    AccelKind, CountStats, Hit, Instance, Instances, Ray, Scene, Shape, Shapes, Surface,
-    TriangleMesh, Triangles, LANES,
+    AccelKind, BuildConfig, CountStats, Hit, Instance, Instances, Ray, Scene, Shape, Shapes,
+    Surface, TriangleMesh, Triangles, LANES,
 };
 use raymesh_geometry::{decode_unit, encode_unit, Aabb, Mat4, Quat, Sphere, Vec3};
 use raymesh_mesh::{normals::vertex_normals, IndexedMesh};
@@ -196,6 +196,16 @@ impl World {
     ) -> Result<Self, SceneError> {
         let err = |path: String, msg: String| SceneError::at(file, path, msg);
         let accel: AccelKind = desc.accel.parse().map_err(|e| err("accel".into(), e))?;
+        if !(0.0..=4.0).contains(&desc.spatial_splits) {
+            return Err(err(
+                "spatial_splits".into(),
+                format!("{} is not a fraction in 0..=4", desc.spatial_splits),
+            ));
+        }
+        let config = BuildConfig {
+            spatial_splits: desc.spatial_splits,
+            ..BuildConfig::default()
+        };
         let img = &desc.image;
         // At most 2^27 pixels (16 bytes each while rendering: about 2 GiB).
         let pixels = img.width as u64 * img.height as u64;
@@ -357,7 +367,8 @@ impl World {
                             let positions = std::mem::take(&mut mesh.positions);
                             drop(mesh);
                             let tm = TriangleMesh::new(positions, tris);
-                            objects.push(Object::Mesh(Scene::from_mesh(&tm, accel)));
+                            let scene = Scene::from_mesh_with(&tm, accel, &config);
+                            objects.push(Object::Mesh(scene));
                             let TriangleMesh {
                                 positions,
                                 triangles: tris,

@@ -41,8 +41,15 @@ fn every_structure_renders_the_same_image() {
         surfaces.push(serde_json::from_str(extra).unwrap());
     }
     let mut reference: Option<Vec<Vec3>> = None;
-    for kind in AccelKind::ALL {
+    // Every structure, then the BVHs that take spatial splits with them.
+    let spatial = [AccelKind::BvhBinned, AccelKind::Bvh8];
+    let builds = AccelKind::ALL
+        .map(|k| (k, 0.0))
+        .into_iter()
+        .chain(spatial.map(|k| (k, 1.0)));
+    for (kind, splits) in builds {
         desc.accel = kind.name().to_string();
+        desc.spatial_splits = splits;
         let w = World::build(&desc, Path::new("demo"), &|name| {
             if name == "builtin:torus-knot" {
                 Ok(raymesh_render::torus_knot(96, 16))
@@ -64,7 +71,10 @@ fn every_structure_renders_the_same_image() {
                     .iter()
                     .zip(&img)
                     .all(|(a, b)| a.to_array().map(f32::to_bits) == b.to_array().map(f32::to_bits));
-                assert!(same, "{kind} renders another image than brute force");
+                assert!(
+                    same,
+                    "{kind} (spatial splits {splits}) renders another image than brute force"
+                );
             }
         }
     }
@@ -173,6 +183,7 @@ fn scene_errors_name_file_line_and_path() {
          ["bad.json", "at surfaces[0].material", "unknown material 'gold'"]),
         (format!("{{{cam}, \"surfaces\": [{{\"type\": \"mesh\", \"file\": \"nope.off\"}}]}}"), ["bad.json", "at surfaces[0].file", "nope.off: cannot read"]),
         (format!("{{{cam}, \"accel\": \"octree\"}}"), ["bad.json", "at accel", "unknown structure 'octree'"]),
+        (format!("{{{cam}, \"spatial_splits\": -1}}"), ["bad.json", "at spatial_splits", "not a fraction"]),
         (format!("{{{cam}, \"image\": {{\"spp\": 0}}}}"), ["bad.json", "at image.spp", "samples per pixel"]),
         (format!("{{{cam}, \"image\": {{\"width\": 32768, \"height\": 32768}}}}"), ["bad.json", "at image", "134,217,728 pixels"]),
         (r#"{"camera": {"eye": [0, 0, 0], "target": [0, 0, 0]}}"#.to_string(), ["bad.json", "at camera", "degenerate camera"]),
