@@ -1,5 +1,5 @@
 //! `raymesh bench MESH... [--accel LIST|all] [--workloads LIST] [--size N]
-//! [--threads LIST] [--repeat R] [--json]`: BENCH.md's workloads through
+//! [--threads LIST] [--repeat R] [--json] [--spatial-splits [FRACTION]]`: BENCH.md's workloads through
 //! every chosen structure, one table per mesh (or JSON lines).
 
 use crate::cmd::raycast::{count, trace};
@@ -8,7 +8,7 @@ use crate::npy::HitRecord;
 use crate::workload::{make_rays_framing, parse_frame, unpack_ray, Workload};
 use anyhow::{bail, Result};
 use indicatif::{ProgressBar, ProgressStyle};
-use raymesh_accel::{AccelKind, Ray, Scene, Surface, TriangleMesh};
+use raymesh_accel::{AccelKind, BuildConfig, Ray, Scene, Surface, TriangleMesh};
 use raymesh_mesh::io::read_mesh;
 use serde::Serialize;
 use std::io::IsTerminal;
@@ -43,6 +43,12 @@ pub struct Args {
     /// Print JSON lines instead of tables.
     #[arg(long)]
     pub json: bool,
+    /// Spatial splits for bvh-binned, bvh4 and bvh8 (as `raycast
+    /// --spatial-splits`): up to FRACTION more references than triangles,
+    /// 0.25 when given alone.
+    #[arg(long, value_name = "FRACTION", num_args = 0..=1, default_missing_value = "0.25",
+          value_parser = crate::cmd::parse_fraction)]
+    pub spatial_splits: Option<f32>,
 }
 
 /// One measured row.
@@ -64,6 +70,7 @@ struct Row {
     any_hit_mrays_per_s: f64,
     nodes_per_ray: f64,
     triangles_per_ray: f64,
+    spatial_splits: f32,
 }
 
 fn parse_list<T: std::str::FromStr<Err = String>>(s: &str) -> Result<Vec<T>> {
@@ -83,6 +90,10 @@ pub fn run(args: &Args) -> Result<()> {
         parse_list(&args.accel)?
     };
     let workloads: Vec<Workload> = parse_list(&args.workloads)?;
+    let config = BuildConfig {
+        spatial_splits: args.spatial_splits.unwrap_or(0.0),
+        ..BuildConfig::default()
+    };
     let frame = args.frame.as_deref().map(parse_frame).transpose()?;
     let all = thread_pool(None)?.current_num_threads();
     let threads: Vec<usize> = match &args.threads {
@@ -138,7 +149,7 @@ pub fn run(args: &Args) -> Result<()> {
             let build = |pool: &rayon::ThreadPool| {
                 pool.install(|| {
                     let t = Instant::now();
-                    let s = Scene::from_mesh(&tm, accel);
+                    let s = Scene::from_mesh_with(&tm, accel, &config);
                     (t.elapsed().as_secs_f64() * 1e3, s)
                 })
             };
@@ -179,6 +190,7 @@ pub fn run(args: &Args) -> Result<()> {
                         any_hit_mrays_per_s: any,
                         nodes_per_ray,
                         triangles_per_ray: tris_per_ray,
+                        spatial_splits: config.spatial_splits,
                     });
                 }
                 bar.inc(1);
