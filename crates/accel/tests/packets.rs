@@ -54,6 +54,15 @@ fn check_mesh(m: &TriangleMesh, rays: &[Ray]) -> usize {
             &format!("{kind} built rows"),
         );
     }
+    // With spatial splits: leaves holding parts of triangles.
+    let spatial = BuildConfig {
+        spatial_splits: 1.0,
+        ..BuildConfig::default()
+    };
+    for kind in [AccelKind::Bvh8, AccelKind::Bvh4, AccelKind::BvhBinned] {
+        let s = Scene::from_mesh_with(m, kind, &spatial);
+        check(&s, rays, &format!("{kind} rows, spatial splits"));
+    }
     coherent
 }
 
