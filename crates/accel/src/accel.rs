@@ -164,9 +164,9 @@ pub enum Accel {
 
 impl Accel {
     /// Builds the structure of the given kind over primitives' boxes.
-    #[must_use]
     /// Spatial splits, if `config` asks for them, cut the boxes themselves
     /// ([`Aabb::split`]).
+    #[must_use]
     pub fn build(kind: AccelKind, boxes: &[Aabb], config: &BuildConfig) -> Self {
         let bounds = |i: u32| boxes[i as usize];
         if let Some(bvh) = Self::build_bvh_by(kind, boxes.len(), &bounds, config) {

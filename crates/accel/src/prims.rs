@@ -114,10 +114,10 @@ pub trait Primitives: Send + Sync {
     fn normal(&self, i: u32, ray: &Ray, hit: &PrimHit) -> Vec3;
     /// Puts the primitives in another order, in place: new primitive `k`
     /// is old primitive `order[k]` (`order` may name a primitive more than
-    /// once, as a BVH with spatial splits does, and then holds more). A scene built over a BVH uses it to
-    /// store primitives in leaf order and drop the permutation's
-    /// indirection. Returns whether it did; `false` (the default, for types
-    /// that cannot) keeps the indirection.
+    /// once, as a BVH with spatial splits does, and then holds more). A
+    /// scene built over a BVH uses it to store primitives in leaf order and
+    /// drop the permutation's indirection. Returns whether it did; `false`
+    /// (the default, for types that cannot) keeps the indirection.
     fn reorder(&mut self, _order: &[u32]) -> bool {
         false
     }
