@@ -53,9 +53,10 @@ const NODE_OVERLAP: f32 = 0.1;
 /// 27.89), 100K slivers 396 -> 343 (696.8 -> 700.7).
 const MIN_SPATIAL_REFS: usize = 128;
 
-/// Most spatial bins per axis, as in Embree's spatial-split builder: each
-/// reference is clipped at every bin plane it spans, so spatial bins cost
-/// far more than object bins, and 32 found no better splits.
+/// Most spatial bins per axis. Each reference is clipped at every bin
+/// plane it spans, so spatial bins cost far more than object bins: 32
+/// found bunny00 a tree 0.4% lower in SAH (22.05 against 22.14) for a
+/// build half as long again (measured before the floor and two axes).
 const SPATIAL_BINS: usize = 16;
 
 /// A subtree of the spatial build: leaves own their primitive ids until
