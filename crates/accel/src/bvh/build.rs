@@ -60,6 +60,22 @@ struct PrimRef {
 const _: () = assert!(std::mem::size_of::<PrimRef>() == 32);
 
 impl PrimRef {
+    /// The references of primitives `0..n`, primitive `i` with box
+    /// `bounds(i)`, made in parallel.
+    fn all(n: usize, bounds: &(dyn Fn(u32) -> Aabb + Sync)) -> Vec<Self> {
+        (0..n as u32)
+            .into_par_iter()
+            .map(|i| {
+                let b = bounds(i);
+                Self {
+                    min: b.min,
+                    id: i,
+                    max: b.max,
+                }
+            })
+            .collect()
+    }
+
     #[inline(always)]
     fn bounds(&self) -> Aabb {
         Aabb::new(self.min, self.max)
@@ -79,6 +95,19 @@ struct Ctx<'a> {
     par_subtree: usize,
     /// [`BuildConfig::leaf_block`], resolved.
     block: usize,
+}
+
+impl<'a> Ctx<'a> {
+    /// What a build by `builder` with `config` reads, splitting subtrees of
+    /// `par_subtree` primitives or more across rayon tasks.
+    fn new(config: &'a BuildConfig, builder: BvhBuilder, par_subtree: usize) -> Self {
+        Self {
+            config,
+            builder,
+            par_subtree,
+            block: config.leaf_block.unwrap_or(1).max(1),
+        }
+    }
 }
 
 /// A subtree as the parallel recursion returns it, flattened once at the end.
@@ -244,23 +273,8 @@ impl BvhBuilder {
             return Bvh::default();
         }
         assert!(n < u32::MAX as usize, "too many primitives for u32 indices");
-        let mut refs: Vec<PrimRef> = (0..n as u32)
-            .into_par_iter()
-            .map(|i| {
-                let b = bounds(i);
-                PrimRef {
-                    min: b.min,
-                    id: i,
-                    max: b.max,
-                }
-            })
-            .collect();
-        let ctx = Ctx {
-            config,
-            builder: self,
-            par_subtree,
-            block: config.leaf_block.unwrap_or(1).max(1),
-        };
+        let mut refs = PrimRef::all(n, bounds);
+        let ctx = Ctx::new(config, self, par_subtree);
         let (bounds, cbounds) = ctx.bounds_pair(&refs);
         // Zeroed by the system, so only the slots written become resident.
         let mut slots: Vec<Node> = bytemuck::zeroed_vec(2 * n);

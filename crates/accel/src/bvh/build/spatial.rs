@@ -148,23 +148,8 @@ impl BvhBuilder {
         // Extra references, within what `u32` slots can number.
         let room = (u32::MAX as usize - 1 - n) as f64;
         let budget = (n as f64 * f64::from(config.spatial_splits)).min(room) as usize;
-        let refs: Vec<PrimRef> = (0..n as u32)
-            .into_par_iter()
-            .map(|i| {
-                let b = bounds(i);
-                PrimRef {
-                    min: b.min,
-                    id: i,
-                    max: b.max,
-                }
-            })
-            .collect();
-        let ctx = Ctx {
-            config,
-            builder: self,
-            par_subtree,
-            block: config.leaf_block.unwrap_or(1).max(1),
-        };
+        let refs = PrimRef::all(n, bounds);
+        let ctx = Ctx::new(config, self, par_subtree);
         let root_area = ctx.bounds_pair(&refs).0.half_area();
         let build = Spatial {
             ctx,
