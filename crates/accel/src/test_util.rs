@@ -6,13 +6,7 @@ use raymesh_geometry::{Aabb, Vec3};
 /// `n` small boxes in seven overlapping clusters (a fixed xorshift
 /// sequence): enough structure that SAH builders have real choices.
 pub(crate) fn clustered_boxes(n: usize) -> Vec<Aabb> {
-    let mut s = 0x2545_f491_u32;
-    let mut next = move || {
-        s ^= s << 13;
-        s ^= s >> 17;
-        s ^= s << 5;
-        (s as f32) / (u32::MAX as f32)
-    };
+    let mut next = xorshift(0x2545_f491);
     (0..n)
         .map(|i| {
             let cluster = Vec3::splat((i % 7) as f32 * 3.0);
@@ -21,6 +15,17 @@ pub(crate) fn clustered_boxes(n: usize) -> Vec<Aabb> {
             Aabb::new(p, p + e)
         })
         .collect()
+}
+
+/// A fixed xorshift sequence from `seed` (not 0), as floats in [0, 1].
+pub(crate) fn xorshift(seed: u32) -> impl FnMut() -> f32 {
+    let mut s = seed;
+    move || {
+        s ^= s << 13;
+        s ^= s >> 17;
+        s ^= s << 5;
+        (s as f32) / (u32::MAX as f32)
+    }
 }
 
 /// A rayon pool of `threads` workers, for tests that compare thread counts.

@@ -32,6 +32,19 @@ fn spatial() -> BuildConfig {
     }
 }
 
+/// Every kind with default settings, then the spatial-split kinds with
+/// [`spatial`], each with how to name it in a failure.
+fn builds() -> impl Iterator<Item = (AccelKind, BuildConfig, &'static str)> {
+    KINDS
+        .into_iter()
+        .map(|k| (k, BuildConfig::default(), ""))
+        .chain(
+            SPATIAL_KINDS
+                .into_iter()
+                .map(|k| (k, spatial(), " with spatial splits")),
+        )
+}
+
 /// [`hit_bits`] without the normal.
 fn key(h: Option<Hit>) -> Option<(u32, u32, u32, u32, u32)> {
     hit_bits(h).map(|(prim, instance, t, u, v, _)| (prim, instance, t, u, v))
@@ -49,14 +62,7 @@ fn check_all<P: Primitives + Clone>(prims: &P, rays: &[Ray]) -> usize {
             "brute force any-hit disagrees with closest-hit"
         );
     }
-    let builds = KINDS
-        .iter()
-        .map(|&k| (k, BuildConfig::default(), ""))
-        .chain(
-            SPATIAL_KINDS
-                .iter()
-                .map(|&k| (k, spatial(), " with spatial splits")),
-        );
+    let builds = builds();
     for (kind, config, how) in builds {
         let s = Scene::build_with(prims.clone(), kind, &config);
         for (i, r) in rays.iter().enumerate() {
@@ -88,14 +94,7 @@ fn check_mesh(m: &TriangleMesh, rays: &[Ray]) -> usize {
     assert_eq!(check_all(&tris, rays), hits);
     // Scenes gathered straight from the mesh in leaf order are the same
     // scenes, hit for hit, with the same structure.
-    let builds = KINDS
-        .iter()
-        .map(|&k| (k, BuildConfig::default(), ""))
-        .chain(
-            SPATIAL_KINDS
-                .iter()
-                .map(|&k| (k, spatial(), " with spatial splits")),
-        );
+    let builds = builds();
     for (kind, config, how) in builds {
         let want = Scene::build_with(tris.clone(), kind, &config);
         let got = Scene::from_mesh_with(m, kind, &config);

@@ -511,13 +511,7 @@ mod tests {
     /// case spatial splits are for, long primitives whose boxes overlap
     /// every object split's children around them.
     fn slivers(n: usize) -> Vec<[Vec3; 3]> {
-        let mut s = 0x9e37_79b9_u32;
-        let mut next = move || {
-            s ^= s << 13;
-            s ^= s >> 17;
-            s ^= s << 5;
-            (s as f32) / (u32::MAX as f32)
-        };
+        let mut next = crate::test_util::xorshift(0x9e37_79b9);
         (0..n)
             .map(|i| {
                 let a = Vec3::new(next(), next(), next()) * 8.0;
