@@ -84,6 +84,22 @@ pub(crate) fn prefetch<T>(x: &T) {
     }
 }
 
+/// [`prefetch`] of `v[i]`'s first cache line, with no bounds check: an
+/// index out of range only prefetches a line nobody reads.
+#[inline(always)]
+pub(crate) fn prefetch_at<T>(v: &[T], i: usize) {
+    #[cfg(target_arch = "x86_64")]
+    if SIMD_ENABLED.load(Ordering::Relaxed) {
+        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+        let p = v.as_ptr().wrapping_add(i).cast::<i8>();
+        // SAFETY: SSE is part of x86_64, and a prefetch never faults nor
+        // reads anything into the program: any address is fine.
+        unsafe { _mm_prefetch::<_MM_HINT_T0>(p) };
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (v, i);
+}
+
 /// Each of the first three lanes of `f` clamped to `[0, last]` (a NaN to
 /// 0) and truncated to an integer: a centroid's bin on each axis in the
 /// binned BVH builders, which do it for every primitive of every node.

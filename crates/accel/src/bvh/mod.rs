@@ -380,6 +380,11 @@ impl Bvh {
             } else {
                 let pair = &self.pairs[(node.index >> 1) as usize].0;
                 let (l, r) = (&pair[0], &pair[1]);
+                // Start fetching both grandchild pairs while the children
+                // are tested: the walk goes on to one of them next, or
+                // pops one later (a leaf's index only wastes a prefetch).
+                simd::prefetch_at(&self.pairs, (l.index >> 1) as usize);
+                simd::prefetch_at(&self.pairs, (r.index >> 1) as usize);
                 let bound = cull_bound(tmax);
                 let ((l0, l1), (r0, r1)) = (pr.slab(l, bound), pr.slab(r, bound));
                 let (hit_l, hit_r) = (l0 <= l1, r0 <= r1);
