@@ -288,6 +288,27 @@ impl Accel {
         }
     }
 
+    /// For the structures whose leaves are lists of primitive indices
+    /// (the k-d tree, the grid): calls `list` with each list of candidate
+    /// primitives front to back, as far as the bound it returns lets the
+    /// traversal go, and returns `true`. Calls nothing and returns `false`
+    /// for the others.
+    #[inline]
+    pub(crate) fn traverse_lists<C: RayCounter>(
+        &self,
+        ray: &Ray,
+        counter: &mut C,
+        list: &mut impl FnMut(&[u32]) -> f32,
+    ) -> bool {
+        match self {
+            Self::Grid(g) if ray.is_valid() => g.traverse_lists(ray, counter, list),
+            Self::KdTree(k) if ray.is_valid() => k.traverse_lists(ray, counter, list),
+            Self::Grid(_) | Self::KdTree(_) => {}
+            _ => return false,
+        }
+        true
+    }
+
     /// Calls `leaf` for candidate primitives front to back, as far as the
     /// bound it returns lets the traversal go.
     #[inline]

@@ -1,7 +1,7 @@
 //! Uniform grid traversed by 3D-DDA (Amanatides & Woo, "A fast voxel
 //! traversal algorithm for ray tracing", 1987).
 
-use crate::{AccelStats, BuildConfig, Leaf, RayCounter};
+use crate::{each_id, AccelStats, BuildConfig, Leaf, RayCounter, BLOCK};
 use raymesh_geometry::{cull_bound, Aabb, Ray, Vec3};
 use rayon::prelude::*;
 use std::cell::RefCell;
@@ -257,6 +257,21 @@ impl Grid {
 
     #[inline]
     pub(crate) fn traverse<C: RayCounter>(&self, ray: &Ray, counter: &mut C, leaf: &mut impl Leaf) {
+        self.traverse_lists(ray, counter, &mut each_id(ray, leaf));
+    }
+
+    /// Cell-by-cell traversal calling `list(ids)` with the primitives of
+    /// each cell not yet tested for this ray, up to [`BLOCK`] at a time;
+    /// it returns the ray's new upper bound (below `tmin` stops), so that
+    /// a caller can test them together
+    /// ([`crate::Primitives::intersect_ids`]).
+    #[inline]
+    pub(crate) fn traverse_lists<C: RayCounter>(
+        &self,
+        ray: &Ray,
+        counter: &mut C,
+        list: &mut impl FnMut(&[u32]) -> f32,
+    ) {
         let Some((t_enter, _)) = self.bounds.intersect_ray(ray, ray.tmax()) else {
             return;
         };
@@ -271,11 +286,11 @@ impl Grid {
                     marks.fill(0);
                     *stamp = 1;
                 }
-                self.dda(ray, t_enter, counter, leaf, Some((*stamp, marks)));
+                self.dda(ray, t_enter, counter, list, Some((*stamp, marks)));
             }
             // A grid inside a grid (instances): the inner one goes without a
             // mailbox; testing a primitive twice gives the same answer.
-            Err(_) => self.dda(ray, t_enter, counter, leaf, None),
+            Err(_) => self.dda(ray, t_enter, counter, list, None),
         });
     }
 
@@ -285,7 +300,7 @@ impl Grid {
         ray: &Ray,
         t_enter: f32,
         counter: &mut C,
-        leaf: &mut impl Leaf,
+        list: &mut impl FnMut(&[u32]) -> f32,
         mut mailbox: Option<(u32, &mut Vec<u32>)>,
     ) {
         let (o, d, inv) = (ray.origin(), ray.dir(), ray.inv_dir());
@@ -320,18 +335,25 @@ impl Grid {
         loop {
             counter.node();
             let c = self.cell_index(cell);
-            for &p in
-                &self.cell_prims[self.cell_starts[c] as usize..self.cell_starts[c + 1] as usize]
-            {
-                if let Some((stamp, marks)) = mailbox.as_mut() {
-                    if std::mem::replace(&mut marks[p as usize], *stamp) == *stamp {
-                        continue;
-                    }
+            let here =
+                &self.cell_prims[self.cell_starts[c] as usize..self.cell_starts[c + 1] as usize];
+            let mut block = [0u32; BLOCK];
+            let mut n = 0;
+            for (k, &p) in here.iter().enumerate() {
+                let seen = mailbox.as_mut().is_some_and(|(stamp, marks)| {
+                    std::mem::replace(&mut marks[p as usize], *stamp) == *stamp
+                });
+                if !seen {
+                    counter.prim();
+                    block[n] = p;
+                    n += 1;
                 }
-                counter.prim();
-                tmax = leaf(p);
-                if tmax < ray.tmin() {
-                    return;
+                if n > 0 && (n == BLOCK || k + 1 == here.len()) {
+                    tmax = list(&block[..n]);
+                    if tmax < ray.tmin() {
+                        return;
+                    }
+                    n = 0;
                 }
             }
             let a = if next[0] <= next[1] && next[0] <= next[2] {

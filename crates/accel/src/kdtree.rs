@@ -3,7 +3,7 @@
 //! tracing, and on doing that in O(N log N)", 2006; binning as in Hunt et
 //! al. 2006) and traversed front to back (pbrt-v4's `KdTreeAggregate`).
 
-use crate::{AccelStats, BuildConfig, Leaf, RayCounter};
+use crate::{each_id, AccelStats, BuildConfig, Leaf, RayCounter};
 use raymesh_geometry::{cull_bound, Aabb, Ray, Vec3};
 use rayon::prelude::*;
 use std::ops::Range;
@@ -232,6 +232,20 @@ impl KdTree {
 
     #[inline]
     pub(crate) fn traverse<C: RayCounter>(&self, ray: &Ray, counter: &mut C, leaf: &mut impl Leaf) {
+        self.traverse_lists(ray, counter, &mut each_id(ray, leaf));
+    }
+
+    /// Front-to-back traversal calling `list(ids)` with each nonempty
+    /// leaf's primitives; it returns the ray's new upper bound (below
+    /// `tmin` stops), so that a caller can test a leaf's primitives
+    /// together ([`crate::Primitives::intersect_ids`]).
+    #[inline]
+    pub(crate) fn traverse_lists<C: RayCounter>(
+        &self,
+        ray: &Ray,
+        counter: &mut C,
+        list: &mut impl FnMut(&[u32]) -> f32,
+    ) {
         if self.nodes.is_empty() {
             return;
         }
@@ -277,9 +291,12 @@ impl KdTree {
                     continue;
                 }
                 let start = n.a as usize;
-                for &p in &self.prims[start..start + n.upper() as usize] {
-                    counter.prim();
-                    tmax = leaf(p);
+                let ids = &self.prims[start..start + n.upper() as usize];
+                if !ids.is_empty() {
+                    for _ in ids {
+                        counter.prim();
+                    }
+                    tmax = list(ids);
                     if tmax < ray.tmin() {
                         return;
                     }

@@ -47,3 +47,20 @@ pub use stats::{AccelStats, CountStats, NoStats, RayCounter};
 /// ray's new upper bound (the best hit's `t`, or `-inf` to stop at once).
 pub(crate) trait Leaf: FnMut(u32) -> f32 {}
 impl<F: FnMut(u32) -> f32> Leaf for F {}
+
+/// A list callback for traversals that hand out lists of primitives:
+/// calls `leaf` on each primitive of the list in order until it returns
+/// a bound below the ray's `tmin`, and returns the last bound.
+#[inline(always)]
+pub(crate) fn each_id<'a>(ray: &'a Ray, leaf: &'a mut impl Leaf) -> impl FnMut(&[u32]) -> f32 + 'a {
+    move |ids| {
+        let mut tmax = ray.tmax();
+        for &p in ids {
+            tmax = leaf(p);
+            if tmax < ray.tmin() {
+                break;
+            }
+        }
+        tmax
+    }
+}

@@ -83,6 +83,18 @@ pub trait Primitives: Send + Sync {
         let mask = intersect_each(self, first, 0..count.min(BLOCK as u32), ray, tmax, &mut out);
         (mask, out)
     }
+    /// Tests primitives `ids` (at most [`BLOCK`]; lane `k` is primitive
+    /// `ids[k]`) as [`Self::intersect_block`] tests consecutive ones: the
+    /// k-d tree's leaves and the grid's cells name their primitives by
+    /// index. Triangles gather the corners into a block for the SIMD test;
+    /// the default loops.
+    #[inline]
+    fn intersect_ids(&self, ids: &[u32], ray: &Ray, tmax: f32) -> (u32, BlockHits) {
+        let ids = &ids[..ids.len().min(BLOCK)];
+        let mut out = BlockHits::default();
+        let mask = intersect_listed(self, ids, 0..ids.len(), ray, tmax, &mut out);
+        (mask, out)
+    }
     /// Whether [`Self::intersect_block`] tests a block at once (a SIMD
     /// kernel) rather than one by one: then a binary BVH's SAH counts its
     /// leaves in blocks (see [`crate::BuildConfig::leaf_block`]).
@@ -144,6 +156,26 @@ fn intersect_each<P: Primitives + ?Sized>(
     for k in lanes {
         if let Some(h) = prims.intersect(first + k, ray, tmax) {
             out.set(k as usize, h);
+            mask |= 1 << k;
+        }
+    }
+    mask
+}
+
+/// [`intersect_each`] for primitives named by a list: lane `k` is
+/// primitive `ids[k]`. The portable path of [`Primitives::intersect_ids`].
+fn intersect_listed<P: Primitives + ?Sized>(
+    prims: &P,
+    ids: &[u32],
+    lanes: impl Iterator<Item = usize>,
+    ray: &Ray,
+    tmax: f32,
+    out: &mut BlockHits,
+) -> u32 {
+    let mut mask = 0;
+    for k in lanes {
+        if let Some(h) = prims.intersect(ids[k], ray, tmax) {
+            out.set(k, h);
             mask |= 1 << k;
         }
     }
@@ -390,6 +422,38 @@ impl Primitives for Triangles {
         (mask, out)
     }
     #[inline(always)]
+    fn intersect_ids(&self, ids: &[u32], ray: &Ray, tmax: f32) -> (u32, BlockHits) {
+        let ids = &ids[..ids.len().min(BLOCK)];
+        #[cfg(target_arch = "x86_64")]
+        if crate::simd::has_avx2() {
+            // The nine rows of the block, gathered: row `r`'s lane `k` is
+            // triangle `ids[k]`'s coordinate `r` (lanes past the list stay
+            // zero and are ignored by the kernel).
+            let mut rows = [[0.0f32; BLOCK]; 9];
+            let s = self.stride();
+            for (k, &i) in ids.iter().enumerate() {
+                let i = i as usize;
+                assert!(i < self.len);
+                for (r, row) in rows.iter_mut().enumerate() {
+                    row[k] = self.data[r * s + i];
+                }
+            }
+            let (mask, redo, mut out) =
+                crate::simd::triangles8(rows.as_flattened(), BLOCK, 0, ids.len(), ray, tmax);
+            if redo == 0 {
+                return (mask, out);
+            }
+            // Lanes whose edge function rounded to zero take the scalar
+            // test's f64 path.
+            let lanes = (0..ids.len()).filter(|k| redo >> k & 1 != 0);
+            let more = intersect_listed(self, ids, lanes, ray, tmax, &mut out);
+            return (mask | more, out);
+        }
+        let mut out = BlockHits::default();
+        let mask = intersect_listed(self, ids, 0..ids.len(), ray, tmax, &mut out);
+        (mask, out)
+    }
+    #[inline(always)]
     fn intersect_packet(
         &self,
         i: u32,
@@ -528,6 +592,10 @@ impl<P: Primitives + ?Sized> Primitives for &P {
     #[inline(always)]
     fn intersect_block(&self, first: u32, count: u32, ray: &Ray, tmax: f32) -> (u32, BlockHits) {
         (**self).intersect_block(first, count, ray, tmax)
+    }
+    #[inline(always)]
+    fn intersect_ids(&self, ids: &[u32], ray: &Ray, tmax: f32) -> (u32, BlockHits) {
+        (**self).intersect_ids(ids, ray, tmax)
     }
     fn normal(&self, i: u32, ray: &Ray, hit: &PrimHit) -> Vec3 {
         (**self).normal(i, ray, hit)

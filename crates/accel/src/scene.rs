@@ -171,7 +171,10 @@ impl<P: Primitives> Scene<P> {
                 self.leaf_closest(ray, first, count, &mut tmax, &mut best);
                 tmax
             });
-        } else {
+        } else if !self.accel.traverse_lists(ray, counter, &mut |ids| {
+            self.list_closest(ray, ids, &mut tmax, &mut best);
+            tmax
+        }) {
             self.accel.traverse(ray, counter, &mut |prim| {
                 if let Some(h) = self.prims.intersect(prim, ray, tmax) {
                     self.offer(&mut best, &mut tmax, prim, h);
@@ -242,6 +245,42 @@ impl<P: Primitives> Scene<P> {
         None
     }
 
+    /// [`Self::leaf_closest`] for a list of primitives (a k-d tree's leaf,
+    /// a grid cell's untested primitives): a block of [`BLOCK`] at a time
+    /// ([`Primitives::intersect_ids`]), each hit offered in list order.
+    #[inline(always)]
+    fn list_closest(
+        &self,
+        ray: &Ray,
+        ids: &[u32],
+        tmax: &mut f32,
+        best: &mut Option<(u32, PrimHit)>,
+    ) {
+        for block in ids.chunks(BLOCK) {
+            let (mut mask, hits) = self.prims.intersect_ids(block, ray, *tmax);
+            while mask != 0 {
+                let k = mask.trailing_zeros() as usize;
+                mask &= mask - 1;
+                if hits.t[k] <= *tmax {
+                    self.offer(best, tmax, block[k], hits.get(k));
+                }
+            }
+        }
+    }
+
+    /// [`Self::leaf_any`] for a list of primitives: the first in the list
+    /// hit within the ray's interval.
+    #[inline(always)]
+    fn list_any(&self, ray: &Ray, ids: &[u32]) -> Option<(u32, PrimHit)> {
+        ids.chunks(BLOCK).find_map(|block| {
+            let (mask, hits) = self.prims.intersect_ids(block, ray, ray.tmax());
+            (mask != 0).then(|| {
+                let k = mask.trailing_zeros() as usize;
+                (block[k], hits.get(k))
+            })
+        })
+    }
+
     /// Any hit, counting nodes visited and primitives tested.
     pub fn occluded_counted<C: RayCounter>(&self, ray: &Ray, counter: &mut C) -> bool {
         self.any_hit_counted(ray, counter).is_some()
@@ -265,7 +304,14 @@ impl<P: Primitives> Scene<P> {
                 }
             };
             wide.traverse_blocks_unordered(ray, counter, &mut block);
-        } else {
+        } else if !self.accel.traverse_lists(ray, counter, &mut |ids| {
+            found = self.list_any(ray, ids);
+            if found.is_some() {
+                f32::NEG_INFINITY
+            } else {
+                ray.tmax()
+            }
+        }) {
             self.accel
                 .traverse(ray, counter, &mut |prim| match self.prims.intersect(
                     prim,

@@ -697,4 +697,39 @@ mod tests {
             }
         }
     }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(2000))]
+        /// Triangles named by a list (a k-d tree's leaf, a grid cell;
+        /// repeats allowed) gathered into a block give what the scalar
+        /// test gives each, lane by lane, bit for bit.
+        #[test]
+        fn gathered_triangles_match_scalar(
+            tris in proptest::collection::vec(
+                prop_oneof![(hard_vec3(), hard_vec3(), hard_vec3()), (lattice(), lattice(), lattice())], 12),
+            ids in proptest::collection::vec(0u32..12, 0..=8),
+            o in prop_oneof![hard_vec3(), lattice()], d in prop_oneof![hard_vec3(), lattice()],
+            tmin in prop_oneof![Just(0.0f32), hard_coord()], tmax in hard_coord(),
+        ) {
+            let corners: Vec<[Vec3; 3]> = tris.iter().map(|&(a, b, c)| [a, b, c]).collect();
+            let tris = crate::Triangles::from_corners(&corners);
+            let ray = Ray::new(o, d, tmin, f32::INFINITY);
+            let (mask, out) = crate::Primitives::intersect_ids(&tris, &ids, &ray, tmax);
+            for k in 0..8 {
+                let want = ids.get(k).and_then(|&i| {
+                    let [a, b, c] = corners[i as usize];
+                    raymesh_geometry::intersect_triangle(&ray, tmax, a, b, c)
+                });
+                prop_assert_eq!(mask >> k & 1 != 0, want.is_some(), "lane {}", k);
+                if let Some(w) = want {
+                    let h = out.get(k);
+                    prop_assert_eq!(
+                        (h.t.to_bits(), h.u.to_bits(), h.v.to_bits()),
+                        (w.t.to_bits(), w.u.to_bits(), w.v.to_bits()),
+                        "lane {}", k
+                    );
+                }
+            }
+        }
+    }
 }

@@ -1,8 +1,9 @@
 //! The portable fallbacks of the SIMD kernels, checked on machines that
 //! have the instructions: with the kernels switched off (a process-wide
 //! switch, so this file is its own test process), every BVH over
-//! [`Triangles`] still returns brute force's bits, and the same as with
-//! the kernels on, one ray at a time and as a stream.
+//! [`Triangles`] (and the k-d tree and grid, whose leaves gather
+//! triangles into blocks) still returns brute force's bits, and the same
+//! as with the kernels on, one ray at a time and as a stream.
 
 use raymesh_accel::*;
 
@@ -40,6 +41,8 @@ fn fallbacks_agree_with_brute_force_and_with_the_kernels() {
         AccelKind::BvhSweep,
         AccelKind::Bvh4,
         AccelKind::Bvh8,
+        AccelKind::KdTree,
+        AccelKind::Grid,
     ];
     for name in [
         "elephant-with-holes.off",
