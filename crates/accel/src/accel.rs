@@ -111,14 +111,17 @@ pub struct BuildConfig {
     /// Bins per axis of the binned SAH builders. More bins find better splits
     /// for a slower build.
     pub bins: usize,
-    /// Primitives a binary BVH's leaf tests at once. The SAH builders count
-    /// a leaf's (and a split side's) primitives in blocks of this many, as
-    /// Embree's binned builder does for its SIMD leaves, so that a leaf of
-    /// up to a block costs one test. `None`: a `Scene` picks its SIMD block
-    /// width for the binned and sweep BVHs over primitives whose leaves it
-    /// tests as blocks (triangles); everything else counts one by one,
-    /// including the binary tree a wide BVH is collapsed from (the collapse
-    /// weighs blocks itself, and a finer tree gives it more to choose from).
+    /// Primitives a binary BVH's or k-d tree's leaf tests for the cost of
+    /// one. The SAH builders count a leaf's (and a split side's)
+    /// primitives in blocks of this many, as Embree's binned builder does
+    /// for its SIMD leaves, so that a leaf of up to a block costs one
+    /// test. `None`: a `Scene` over primitives whose leaves it tests as
+    /// blocks (triangles) picks its SIMD block width for the binned and
+    /// sweep BVHs, and 2 for the k-d tree (whose leaves gather their
+    /// triangles into blocks, a cost per triangle); everything else counts
+    /// one by one, including the binary tree a wide BVH is collapsed from
+    /// (the collapse weighs blocks itself, and a finer tree gives it more
+    /// to choose from).
     pub leaf_block: Option<usize>,
     /// Spatial splits (SBVH, Stich et al. 2009) for the binned SAH BVHs
     /// (`bvh-binned`, `bvh4`, `bvh8`): how many references spatial splits

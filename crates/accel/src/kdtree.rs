@@ -76,6 +76,8 @@ struct Builder<'a> {
     max_depth: usize,
     /// [`PAR_SUBTREE`], or more to build on one thread (tests compare both).
     par_subtree: usize,
+    /// Primitives a leaf tests for the cost of one ([`Self::tests`]).
+    block: u32,
 }
 
 /// Nodes and leaf primitive lists of a subtree built on one thread; child
@@ -178,6 +180,7 @@ impl KdTree {
             // Havran's rule of thumb, 8 + 1.3 log2 N, within the stack.
             max_depth: ((8.0 + 1.3 * (n.max(1) as f64).log2()).round() as usize).min(MAX_DEPTH - 1),
             par_subtree,
+            block: config.leaf_block.unwrap_or(1).clamp(1, 64) as u32,
         };
         let mut out = Local::default();
         if n > 0 {
@@ -329,7 +332,7 @@ impl Builder<'_> {
         }
         let (cost, axis, pos) = self.best_split(bounds, ids, bins)?;
         let mut bad = bad;
-        if cost >= n as f32 {
+        if cost >= self.tests(n as u32) {
             bad += 1;
             if bad > MAX_BAD_REFINES || n <= self.config.max_leaf / 2 {
                 return None;
@@ -472,6 +475,14 @@ impl Builder<'_> {
     }
 
     /// Cheapest plane among the bin boundaries of every axis, as (cost, axis, position).
+    /// What a leaf of `n` primitives costs to test, in tests of one:
+    /// blocks of [`BuildConfig::leaf_block`] when its primitives are
+    /// tested together.
+    #[inline(always)]
+    fn tests(&self, n: u32) -> f32 {
+        n.div_ceil(self.block) as f32
+    }
+
     fn best_split(
         &self,
         bounds: Aabb,
@@ -514,7 +525,7 @@ impl Builder<'_> {
                 };
                 // Compared before the division by the node's area, which
                 // is the same for every candidate.
-                let cost = bonus * (ab * n_below as f32 + aa * n_above as f32);
+                let cost = bonus * (ab * self.tests(n_below) + aa * self.tests(n_above));
                 if best.is_none_or(|(c, _, _)| cost < c) {
                     best = Some((cost, axis, pos));
                 }
@@ -549,5 +560,32 @@ mod tests {
                 assert_eq!(par.bounds, seq.bounds);
             }
         }
+    }
+
+    /// Counting leaves in blocks ([`BuildConfig::leaf_block`]) makes fewer,
+    /// fuller leaves, and still names every primitive.
+    #[test]
+    fn leaf_blocks_make_fuller_leaves() {
+        let b = crate::test_util::clustered_boxes(20_000);
+        let one = KdTree::build(&b, &BuildConfig::default());
+        let config = BuildConfig {
+            leaf_block: Some(2),
+            ..BuildConfig::default()
+        };
+        let two = KdTree::build(&b, &config);
+        let (s1, s2) = (one.stats(), two.stats());
+        assert!(
+            s2.leaves < s1.leaves,
+            "{} leaves against {}",
+            s2.leaves,
+            s1.leaves
+        );
+        let fill = |t: &KdTree, leaves: usize| t.prims.len() as f64 / leaves as f64;
+        assert!(fill(&two, s2.leaves) > fill(&one, s1.leaves));
+        let mut named = vec![false; b.len()];
+        for &p in &two.prims {
+            named[p as usize] = true;
+        }
+        assert!(named.iter().all(|&n| n), "a primitive in no leaf");
     }
 }
