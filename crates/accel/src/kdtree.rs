@@ -474,7 +474,6 @@ impl Builder<'_> {
         }
     }
 
-    /// Cheapest plane among the bin boundaries of every axis, as (cost, axis, position).
     /// What a leaf of `n` primitives costs to test, in tests of one:
     /// blocks of [`BuildConfig::leaf_block`] when its primitives are
     /// tested together.
@@ -483,6 +482,7 @@ impl Builder<'_> {
         n.div_ceil(self.block) as f32
     }
 
+    /// Cheapest plane among the bin boundaries of every axis, as (cost, axis, position).
     fn best_split(
         &self,
         bounds: Aabb,
