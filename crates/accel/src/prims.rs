@@ -80,7 +80,8 @@ pub trait Primitives: Send + Sync {
     #[inline]
     fn intersect_block(&self, first: u32, count: u32, ray: &Ray, tmax: f32) -> (u32, BlockHits) {
         let mut out = BlockHits::default();
-        let mask = intersect_each(self, first, 0..count.min(BLOCK as u32), ray, tmax, &mut out);
+        let lanes = 0..(count as usize).min(BLOCK);
+        let mask = intersect_each(self, |k| first + k as u32, lanes, ray, tmax, &mut out);
         (mask, out)
     }
     /// Tests primitives `ids` (at most [`BLOCK`]; lane `k` is primitive
@@ -92,7 +93,7 @@ pub trait Primitives: Send + Sync {
     fn intersect_ids(&self, ids: &[u32], ray: &Ray, tmax: f32) -> (u32, BlockHits) {
         let ids = &ids[..ids.len().min(BLOCK)];
         let mut out = BlockHits::default();
-        let mask = intersect_listed(self, ids, 0..ids.len(), ray, tmax, &mut out);
+        let mask = intersect_each(self, |k| ids[k], 0..ids.len(), ray, tmax, &mut out);
         (mask, out)
     }
     /// Whether [`Self::intersect_block`] tests a block at once (a SIMD
@@ -140,33 +141,14 @@ fn permuted<T: Copy + Send + Sync>(v: &[T], order: &[u32]) -> Vec<T> {
     order.par_iter().map(|&i| v[i as usize]).collect()
 }
 
-/// Tests lanes `lanes` of the block at `first` one by one with
-/// [`Primitives::intersect`]: the portable path of
-/// [`Primitives::intersect_block`]. Returns the mask of lanes hit.
+/// Tests lanes `lanes` one by one with [`Primitives::intersect`], lane
+/// `k` being primitive `prim(k)`: the portable path of
+/// [`Primitives::intersect_block`] (consecutive primitives) and
+/// [`Primitives::intersect_ids`] (a list). Returns the mask of lanes hit.
 #[inline(always)]
 fn intersect_each<P: Primitives + ?Sized>(
     prims: &P,
-    first: u32,
-    lanes: impl Iterator<Item = u32>,
-    ray: &Ray,
-    tmax: f32,
-    out: &mut BlockHits,
-) -> u32 {
-    let mut mask = 0;
-    for k in lanes {
-        if let Some(h) = prims.intersect(first + k, ray, tmax) {
-            out.set(k as usize, h);
-            mask |= 1 << k;
-        }
-    }
-    mask
-}
-
-/// [`intersect_each`] for primitives named by a list: lane `k` is
-/// primitive `ids[k]`. The portable path of [`Primitives::intersect_ids`].
-fn intersect_listed<P: Primitives + ?Sized>(
-    prims: &P,
-    ids: &[u32],
+    prim: impl Fn(usize) -> u32,
     lanes: impl Iterator<Item = usize>,
     ray: &Ray,
     tmax: f32,
@@ -174,7 +156,7 @@ fn intersect_listed<P: Primitives + ?Sized>(
 ) -> u32 {
     let mut mask = 0;
     for k in lanes {
-        if let Some(h) = prims.intersect(ids[k], ray, tmax) {
+        if let Some(h) = prims.intersect(prim(k), ray, tmax) {
             out.set(k, h);
             mask |= 1 << k;
         }
@@ -413,12 +395,12 @@ impl Primitives for Triangles {
             }
             // Lanes whose edge function rounded to zero take the scalar
             // test's f64 path.
-            let lanes = (0..count as u32).filter(|k| redo >> k & 1 != 0);
-            let more = intersect_each(self, first as u32, lanes, ray, tmax, &mut out);
+            let lanes = (0..count).filter(|k| redo >> k & 1 != 0);
+            let more = intersect_each(self, |k| (first + k) as u32, lanes, ray, tmax, &mut out);
             return (mask | more, out);
         }
         let mut out = BlockHits::default();
-        let mask = intersect_each(self, first as u32, 0..count as u32, ray, tmax, &mut out);
+        let mask = intersect_each(self, |k| (first + k) as u32, 0..count, ray, tmax, &mut out);
         (mask, out)
     }
     #[inline(always)]
@@ -446,11 +428,11 @@ impl Primitives for Triangles {
             // Lanes whose edge function rounded to zero take the scalar
             // test's f64 path.
             let lanes = (0..ids.len()).filter(|k| redo >> k & 1 != 0);
-            let more = intersect_listed(self, ids, lanes, ray, tmax, &mut out);
+            let more = intersect_each(self, |k| ids[k], lanes, ray, tmax, &mut out);
             return (mask | more, out);
         }
         let mut out = BlockHits::default();
-        let mask = intersect_listed(self, ids, 0..ids.len(), ray, tmax, &mut out);
+        let mask = intersect_each(self, |k| ids[k], 0..ids.len(), ray, tmax, &mut out);
         (mask, out)
     }
     #[inline(always)]

@@ -649,6 +649,30 @@ mod tests {
         }
     }
 
+    /// Checks a block test's lanes against the scalar test's hit of each
+    /// lane (`want(k)`): the same lanes hit, with the same bits of `t`,
+    /// `u` and `v`.
+    fn lanes_match(
+        mask: u32,
+        out: &crate::BlockHits,
+        want: impl Fn(usize) -> Option<raymesh_geometry::TriHit>,
+    ) -> Result<(), TestCaseError> {
+        for k in 0..8 {
+            let want = want(k);
+            prop_assert_eq!(mask >> k & 1 != 0, want.is_some(), "lane {}", k);
+            if let Some(w) = want {
+                let h = out.get(k);
+                prop_assert_eq!(
+                    (h.t.to_bits(), h.u.to_bits(), h.v.to_bits()),
+                    (w.t.to_bits(), w.u.to_bits(), w.v.to_bits()),
+                    "lane {}",
+                    k
+                );
+            }
+        }
+        Ok(())
+    }
+
     /// Lattice coordinates make edge functions round to exactly zero
     /// (rays through shared edges and vertices), which takes the f64 path.
     fn lattice() -> impl Strategy<Value = Vec3> {
@@ -678,23 +702,12 @@ mod tests {
             let (mask, out) = crate::Primitives::intersect_block(
                 &tris, first as u32, count as u32, &ray, tmax,
             );
-            for k in 0..8 {
-                let want = if k < count {
+            lanes_match(mask, &out, |k| {
+                (k < count).then(|| {
                     let [a, b, c] = corners[first + k];
                     raymesh_geometry::intersect_triangle(&ray, tmax, a, b, c)
-                } else {
-                    None
-                };
-                prop_assert_eq!(mask >> k & 1 != 0, want.is_some(), "lane {}", k);
-                if let Some(w) = want {
-                    let h = out.get(k);
-                    prop_assert_eq!(
-                        (h.t.to_bits(), h.u.to_bits(), h.v.to_bits()),
-                        (w.t.to_bits(), w.u.to_bits(), w.v.to_bits()),
-                        "lane {}", k
-                    );
-                }
-            }
+                })?
+            })?;
         }
     }
 
@@ -715,21 +728,10 @@ mod tests {
             let tris = crate::Triangles::from_corners(&corners);
             let ray = Ray::new(o, d, tmin, f32::INFINITY);
             let (mask, out) = crate::Primitives::intersect_ids(&tris, &ids, &ray, tmax);
-            for k in 0..8 {
-                let want = ids.get(k).and_then(|&i| {
-                    let [a, b, c] = corners[i as usize];
-                    raymesh_geometry::intersect_triangle(&ray, tmax, a, b, c)
-                });
-                prop_assert_eq!(mask >> k & 1 != 0, want.is_some(), "lane {}", k);
-                if let Some(w) = want {
-                    let h = out.get(k);
-                    prop_assert_eq!(
-                        (h.t.to_bits(), h.u.to_bits(), h.v.to_bits()),
-                        (w.t.to_bits(), w.u.to_bits(), w.v.to_bits()),
-                        "lane {}", k
-                    );
-                }
-            }
+            lanes_match(mask, &out, |k| {
+                let [a, b, c] = corners[*ids.get(k)? as usize];
+                raymesh_geometry::intersect_triangle(&ray, tmax, a, b, c)
+            })?;
         }
     }
 }
