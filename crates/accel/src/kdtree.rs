@@ -268,6 +268,10 @@ impl KdTree {
                     let axis = n.axis();
                     let split = n.split();
                     let (below, above) = (node + 1, n.upper() as usize);
+                    // The below child shares this node's cache line or
+                    // the next; the above one lies far off, and is visited
+                    // next or popped later: start fetching it now.
+                    crate::simd::prefetch_at(&self.nodes, above);
                     if d[axis] == 0.0 {
                         // Parallel to the plane: one side holds the whole ray.
                         node = if o[axis] <= split { below } else { above };
