@@ -48,19 +48,28 @@ pub use stats::{AccelStats, CountStats, NoStats, RayCounter};
 pub(crate) trait Leaf: FnMut(u32) -> f32 {}
 impl<F: FnMut(u32) -> f32> Leaf for F {}
 
+/// Calls `leaf` on each primitive of `prims` in order until it returns a
+/// bound below the ray's `tmin`; returns the last bound (the ray's `tmax`
+/// for none). The one-by-one leaf loop of every traversal.
+#[inline(always)]
+pub(crate) fn test_each(
+    prims: impl IntoIterator<Item = u32>,
+    ray: &Ray,
+    leaf: &mut impl Leaf,
+) -> f32 {
+    let mut tmax = ray.tmax();
+    for p in prims {
+        tmax = leaf(p);
+        if tmax < ray.tmin() {
+            break;
+        }
+    }
+    tmax
+}
+
 /// A list callback for traversals that hand out lists of primitives:
-/// calls `leaf` on each primitive of the list in order until it returns
-/// a bound below the ray's `tmin`, and returns the last bound.
+/// [`test_each`] over the list.
 #[inline(always)]
 pub(crate) fn each_id<'a>(ray: &'a Ray, leaf: &'a mut impl Leaf) -> impl FnMut(&[u32]) -> f32 + 'a {
-    move |ids| {
-        let mut tmax = ray.tmax();
-        for &p in ids {
-            tmax = leaf(p);
-            if tmax < ray.tmin() {
-                break;
-            }
-        }
-        tmax
-    }
+    move |ids| test_each(ids.iter().copied(), ray, leaf)
 }

@@ -14,7 +14,7 @@ pub(crate) use wide::slab_scalar;
 pub use wide::{BoxRay, Bvh4, Bvh8, Node4, Node8, WideBvh, WideNode};
 
 use crate::packet::{self, Packet8, LANES};
-use crate::{simd, AccelStats, Leaf, RayCounter};
+use crate::{simd, test_each, AccelStats, Leaf, RayCounter};
 use raymesh_geometry::{
     cull_bound, max_nan_second as max_ns, min_nan_second as min_ns, Aabb, Ray, Vec3, ROBUST_EXIT,
 };
@@ -30,9 +30,8 @@ pub(crate) const STACK_SIZE: usize = 96;
 const SHALLOW: usize = 32;
 
 /// A block callback for traversals that hand out leaves as slot ranges:
-/// calls `leaf` on each primitive of the range in order (through the
-/// permutation `ids`, when there is one) until it returns a bound below
-/// `tmin`.
+/// [`test_each`] over the range's primitives (through the permutation
+/// `ids`, when there is one).
 #[inline(always)]
 pub(crate) fn each_prim<'a>(
     ids: &'a [u32],
@@ -40,15 +39,12 @@ pub(crate) fn each_prim<'a>(
     leaf: &'a mut impl Leaf,
 ) -> impl FnMut(u32, u32) -> f32 + 'a {
     move |first, count| {
-        let mut tmax = ray.tmax();
-        for p in first..first + count {
-            let id = if ids.is_empty() { p } else { ids[p as usize] };
-            tmax = leaf(id);
-            if tmax < ray.tmin() {
-                break;
-            }
-        }
-        tmax
+        let slots = first..first + count;
+        test_each(
+            slots.map(|p| if ids.is_empty() { p } else { ids[p as usize] }),
+            ray,
+            leaf,
+        )
     }
 }
 
