@@ -5,12 +5,6 @@ use common::*;
 
 use std::path::PathBuf;
 
-fn data(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../tests/data")
-        .join(name)
-}
-
 #[test]
 fn demo_and_mesh_render_without_overwriting() {
     let dir = std::env::temp_dir().join(format!("raymesh-render-{}", std::process::id()));
@@ -100,15 +94,14 @@ fn demo_and_mesh_render_without_overwriting() {
 #[test]
 fn example_scenes_parse_and_render() {
     let scenes = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
+    let dir = tmpdir("scenes");
     for name in ["demo.json", "spheres.json", "elephants.json"] {
+        let png = dir.join(format!("{name}.png"));
         let out = raymesh()
             .arg("render")
             .arg(scenes.join(name))
             .args(["--width", "40", "--height", "30", "--spp", "1", "-o"])
-            .arg(
-                std::env::temp_dir()
-                    .join(format!("raymesh-scene-{}-{name}.png", std::process::id())),
-            )
+            .arg(&png)
             .output()
             .unwrap();
         assert!(
@@ -116,5 +109,10 @@ fn example_scenes_parse_and_render() {
             "{name}: {}",
             String::from_utf8_lossy(&out.stderr)
         );
+        // A PNG of the size asked for: the signature, then IHDR's width and height.
+        let bytes = std::fs::read(&png).unwrap();
+        assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n", "{name}");
+        assert_eq!(&bytes[16..24], &[0, 0, 0, 40, 0, 0, 0, 30], "{name}");
     }
+    std::fs::remove_dir_all(&dir).unwrap();
 }
