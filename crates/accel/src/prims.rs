@@ -1,6 +1,7 @@
 //! What structures index: primitives with bounds and a ray test.
 
 use crate::packet::{self, Packet8, LANES};
+use crate::simd::{Avx2, BlockRay};
 use raymesh_geometry::{
     clip_triangle, intersect_sphere, intersect_triangle, Aabb, Ray, Sphere, Vec3,
 };
@@ -83,6 +84,31 @@ pub trait Primitives: Send + Sync {
         let lanes = 0..(count as usize).min(BLOCK);
         let mask = intersect_each(self, |k| first + k as u32, lanes, ray, tmax, &mut out);
         (mask, out)
+    }
+    /// The per-ray constants of [`Self::intersect_block_pre`], computed
+    /// once before a traversal (the default has none).
+    #[inline(always)]
+    fn block_ray(&self, ray: &Ray) -> BlockRay {
+        let _ = ray;
+        BlockRay::default()
+    }
+    /// [`Self::intersect_block`] inside a traversal compiled for AVX2
+    /// (the `Avx2` proof), with the ray's constants from
+    /// [`Self::block_ray`]: the same results. Triangles inline their
+    /// kernel there with nothing recomputed per block; the default calls
+    /// [`Self::intersect_block`].
+    #[inline(always)]
+    fn intersect_block_pre(
+        &self,
+        avx: Avx2,
+        pre: &BlockRay,
+        first: u32,
+        count: u32,
+        ray: &Ray,
+        tmax: f32,
+    ) -> (u32, BlockHits) {
+        let _ = (avx, pre);
+        self.intersect_block(first, count, ray, tmax)
     }
     /// Tests primitives `ids` (at most [`BLOCK`]; lane `k` is primitive
     /// `ids[k]`) as [`Self::intersect_block`] tests consecutive ones: the
@@ -404,6 +430,42 @@ impl Primitives for Triangles {
         (mask, out)
     }
     #[inline(always)]
+    fn block_ray(&self, ray: &Ray) -> BlockRay {
+        BlockRay::new(ray, self.stride())
+    }
+    #[inline(always)]
+    fn intersect_block_pre(
+        &self,
+        avx: Avx2,
+        pre: &BlockRay,
+        first: u32,
+        count: u32,
+        ray: &Ray,
+        tmax: f32,
+    ) -> (u32, BlockHits) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            let count = (count as usize).min(BLOCK);
+            let first = first as usize;
+            assert!(first + count <= self.len);
+            let (mask, redo, mut out) =
+                crate::simd::triangles8_pre(avx, &self.data, first, count, pre, tmax);
+            if redo == 0 {
+                return (mask, out);
+            }
+            // Lanes whose edge function rounded to zero take the scalar
+            // test's f64 path.
+            let lanes = (0..count).filter(|k| redo >> k & 1 != 0);
+            let more = intersect_each(self, |k| (first + k) as u32, lanes, ray, tmax, &mut out);
+            (mask | more, out)
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            let _ = (avx, pre);
+            self.intersect_block(first, count, ray, tmax)
+        }
+    }
+    #[inline(always)]
     fn intersect_ids(&self, ids: &[u32], ray: &Ray, tmax: f32) -> (u32, BlockHits) {
         let ids = &ids[..ids.len().min(BLOCK)];
         #[cfg(target_arch = "x86_64")]
@@ -574,6 +636,22 @@ impl<P: Primitives + ?Sized> Primitives for &P {
     #[inline(always)]
     fn intersect_block(&self, first: u32, count: u32, ray: &Ray, tmax: f32) -> (u32, BlockHits) {
         (**self).intersect_block(first, count, ray, tmax)
+    }
+    #[inline(always)]
+    fn block_ray(&self, ray: &Ray) -> BlockRay {
+        (**self).block_ray(ray)
+    }
+    #[inline(always)]
+    fn intersect_block_pre(
+        &self,
+        avx: Avx2,
+        pre: &BlockRay,
+        first: u32,
+        count: u32,
+        ray: &Ray,
+        tmax: f32,
+    ) -> (u32, BlockHits) {
+        (**self).intersect_block_pre(avx, pre, first, count, ray, tmax)
     }
     #[inline(always)]
     fn intersect_ids(&self, ids: &[u32], ray: &Ray, tmax: f32) -> (u32, BlockHits) {

@@ -154,36 +154,30 @@ pub(crate) fn slab8<const W: usize>(
     debug_assert!(cpu_has_avx2());
     // SAFETY: every array read or written holds W == 8 floats, and the
     // callers run this only on CPUs with AVX2 (inside `with_avx2`).
-    unsafe { slab8_avx(n.min_rows(), n.max_rows(), r, bound, t.as_mut_ptr()) }
+    unsafe { slab8_avx(std::ptr::from_ref(n).cast(), r, bound, t.as_mut_ptr()) }
 }
 
 /// # Safety
-/// The CPU must have AVX; `min` and `max` rows and `t` must hold 8 floats.
+/// The CPU must have AVX; `node` must point to a whole 8-wide node (64
+/// floats: 6 rows of bounds, then the child and count rows) and `t` to 8
+/// writable floats.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
-unsafe fn slab8_avx(
-    min: [*const f32; 3],
-    max: [*const f32; 3],
-    r: &BoxRay,
-    bound: f32,
-    t: *mut f32,
-) -> u32 {
+unsafe fn slab8_avx(node: *const f32, r: &BoxRay, bound: f32, t: *mut f32) -> u32 {
     use std::arch::x86_64::*;
     let exit_pad = _mm256_set1_ps(raymesh_geometry::ROBUST_EXIT);
     let mut lo = [_mm256_setzero_ps(); 3];
     let mut hi = [_mm256_setzero_ps(); 3];
     for a in 0..3 {
-        let (near, far) = if r.neg[a] {
-            (max[a], min[a])
-        } else {
-            (min[a], max[a])
-        };
+        // Rows of the node's 8, masked to 0..8: a row index can never
+        // leave the node.
+        let (near, far) = (r.near[a] & 7, r.far[a] & 7);
         let o = _mm256_set1_ps(r.origin[a]);
         let inv = _mm256_set1_ps(r.inv_dir[a]);
-        lo[a] = _mm256_mul_ps(_mm256_sub_ps(_mm256_loadu_ps(near), o), inv);
+        lo[a] = _mm256_mul_ps(_mm256_sub_ps(_mm256_loadu_ps(node.add(8 * near)), o), inv);
         hi[a] = _mm256_mul_ps(
-            _mm256_mul_ps(_mm256_sub_ps(_mm256_loadu_ps(far), o), inv),
+            _mm256_mul_ps(_mm256_sub_ps(_mm256_loadu_ps(node.add(8 * far)), o), inv),
             exit_pad,
         );
     }
@@ -445,16 +439,102 @@ pub(crate) fn triangles8(
     // Row 8's lanes end at 8 * stride + first + 8, inside 9 * stride.
     assert!(first + 8 <= stride && 9 * stride <= data.len());
     assert!(cpu_has_avx2());
+    // SAFETY: lanes `first..first + 8` of each of the 9 rows lie inside
+    // `data` (asserted), and the CPU has AVX2 (asserted).
+    let (hit, redo, out) = unsafe { triangles8_avx(data.as_ptr().add(first), stride, ray, tmax) };
+    active_lanes(hit, redo, count, out)
+}
+
+/// The kernel's masks restricted to the block's `count` lanes, and the
+/// lanes to redo taken out of the hits.
+#[inline(always)]
+fn active_lanes(hit: u32, redo: u32, count: usize, out: BlockHits) -> (u32, u32, BlockHits) {
     let active = if count >= 8 {
         0xff
     } else {
         (1u32 << count) - 1
     };
-    // SAFETY: lanes `first..first + 8` of each of the 9 rows lie inside
-    // `data` (asserted), and the CPU has AVX2 (asserted).
-    let (hit, redo, out) = unsafe { triangles8_avx(data.as_ptr().add(first), stride, ray, tmax) };
     let (hit, redo) = (hit & active, redo & active);
     (hit & !redo, redo, out)
+}
+
+/// Proof that the CPU has AVX2 and the kernels are enabled
+/// ([`crate::set_simd_enabled`]), checked once where it is made: methods
+/// that take one skip the check. Code compiled for AVX2 (a traversal
+/// under `with_avx2`) inlines the kernels they call.
+#[derive(Clone, Copy, Debug)]
+pub struct Avx2(());
+
+impl Avx2 {
+    /// The proof, where the CPU has AVX2 and the kernels are enabled.
+    #[inline(always)]
+    #[must_use]
+    pub fn detect() -> Option<Self> {
+        has_avx2().then_some(Self(()))
+    }
+}
+
+/// What the triangle kernel needs of a ray over one set of rows, computed
+/// once per ray instead of once per block: the shear constants, the
+/// origin with its axes permuted, `tmin`, and the offset of each of the 9
+/// rows the kernel reads (corner `c`, permuted axis `a`: row
+/// `3 * c + k[a]`), rows `stride` floats apart.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct BlockRay {
+    shear: [f32; 3],
+    origin: [f32; 3],
+    tmin: f32,
+    rows: [usize; 9],
+    /// The largest of `rows`: row 8 (corner 2's axis 2) is always read.
+    reach: usize,
+}
+
+impl BlockRay {
+    /// The kernel's constants for `ray` over rows `stride` floats apart.
+    #[inline(always)]
+    pub(crate) fn new(ray: &Ray, stride: usize) -> Self {
+        let (s, k) = ray.shear();
+        Self {
+            shear: s.to_array(),
+            origin: ray.permute(ray.origin()).to_array(),
+            tmin: ray.tmin(),
+            rows: std::array::from_fn(|r| (3 * (r / 3) + k[r % 3]) * stride),
+            reach: 8 * stride,
+        }
+    }
+}
+
+/// [`triangles8`] inside an AVX2 traversal: the ray's constants come
+/// precomputed ([`BlockRay`], for these rows' `stride`) and the AVX2 check
+/// is the `Avx2` proof, so that the kernel inlines into the traversal's
+/// loop with nothing redone per block. The same results, bit for bit.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) fn triangles8_pre(
+    _avx: Avx2,
+    data: &[f32],
+    first: usize,
+    count: usize,
+    tr: &BlockRay,
+    tmax: f32,
+) -> (u32, u32, BlockHits) {
+    // The farthest row read starts at `reach`; its 8 lanes from `first`
+    // must lie inside `data`.
+    assert!(first + tr.reach + 8 <= data.len());
+    // SAFETY: every row offset is at most `reach`, so each load of 8
+    // lanes from `first` stays inside `data` (asserted); the CPU has AVX2
+    // (the `Avx2` proof).
+    let (hit, redo, out) = unsafe {
+        triangles8_core(
+            data.as_ptr().add(first),
+            |r| tr.rows[r],
+            tr.shear,
+            tr.origin,
+            tr.tmin,
+            tmax,
+        )
+    };
+    active_lanes(hit, redo, count, out)
 }
 
 /// # Safety
@@ -469,27 +549,53 @@ unsafe fn triangles8_avx(
     ray: &Ray,
     tmax: f32,
 ) -> (u32, u32, BlockHits) {
-    use std::arch::x86_64::*;
-    let (s, [kx, ky, kz]) = ray.shear();
+    let (s, k) = ray.shear();
     let o = ray.permute(ray.origin());
+    let row = |r: usize| (3 * (r / 3) + k[r % 3]) * stride;
+    // SAFETY: as this function's contract.
+    unsafe { triangles8_core(rows, row, s.to_array(), o.to_array(), ray.tmin(), tmax) }
+}
+
+/// The kernel itself, inlined into its caller: called from code compiled
+/// for AVX2 (`triangles8_avx`, or a traversal under `with_avx2`) its
+/// intrinsics inline too.
+///
+/// The ray comes as its shear constants, its origin with the axes
+/// permuted, and `tmin`; row `r` of the 9 (corner `r / 3`, permuted axis
+/// `r % 3`) starts `row(r)` floats after `rows`.
+///
+/// # Safety
+/// The CPU must have AVX2; `rows.add(row(r))` must address 8 readable
+/// floats for each row `r` in `0..9`.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn triangles8_core(
+    rows: *const f32,
+    row: impl Fn(usize) -> usize,
+    shear: [f32; 3],
+    origin: [f32; 3],
+    tmin: f32,
+    tmax: f32,
+) -> (u32, u32, BlockHits) {
+    use std::arch::x86_64::*;
     let (sx, sy, sz) = (
-        _mm256_set1_ps(s.x),
-        _mm256_set1_ps(s.y),
-        _mm256_set1_ps(s.z),
+        _mm256_set1_ps(shear[0]),
+        _mm256_set1_ps(shear[1]),
+        _mm256_set1_ps(shear[2]),
     );
     let (ox, oy, oz) = (
-        _mm256_set1_ps(o.x),
-        _mm256_set1_ps(o.y),
-        _mm256_set1_ps(o.z),
+        _mm256_set1_ps(origin[0]),
+        _mm256_set1_ps(origin[1]),
+        _mm256_set1_ps(origin[2]),
     );
     // Corner `c` relative to the ray origin and sheared to 2D, in the
     // scalar test's order of operations (a macro, not a closure, so that
-    // the intrinsics inline into this AVX2 function).
+    // the intrinsics inline wherever this function does).
     macro_rules! shear {
         ($c:expr) => {{
-            let x = _mm256_sub_ps(_mm256_loadu_ps(rows.add((3 * $c + kx) * stride)), ox);
-            let y = _mm256_sub_ps(_mm256_loadu_ps(rows.add((3 * $c + ky) * stride)), oy);
-            let z = _mm256_sub_ps(_mm256_loadu_ps(rows.add((3 * $c + kz) * stride)), oz);
+            let x = _mm256_sub_ps(_mm256_loadu_ps(rows.add(row(3 * $c))), ox);
+            let y = _mm256_sub_ps(_mm256_loadu_ps(rows.add(row(3 * $c + 1))), oy);
+            let z = _mm256_sub_ps(_mm256_loadu_ps(rows.add(row(3 * $c + 2))), oz);
             (
                 _mm256_sub_ps(x, _mm256_mul_ps(sx, z)),
                 _mm256_sub_ps(y, _mm256_mul_ps(sy, z)),
@@ -539,7 +645,7 @@ unsafe fn triangles8_avx(
         _mm256_and_ps(
             _mm256_cmp_ps::<_CMP_NEQ_OQ>(det, zero),
             _mm256_and_ps(
-                _mm256_cmp_ps::<_CMP_GE_OQ>(t, _mm256_set1_ps(ray.tmin())),
+                _mm256_cmp_ps::<_CMP_GE_OQ>(t, _mm256_set1_ps(tmin)),
                 _mm256_cmp_ps::<_CMP_LE_OQ>(t, _mm256_set1_ps(tmax)),
             ),
         ),
@@ -699,15 +805,23 @@ mod tests {
             let corners: Vec<[Vec3; 3]> = tris[..len].iter().map(|&(a, b, c)| [a, b, c]).collect();
             let tris = crate::Triangles::from_corners(&corners);
             let ray = Ray::new(o, d, tmin, f32::INFINITY);
-            let (mask, out) = crate::Primitives::intersect_block(
-                &tris, first as u32, count as u32, &ray, tmax,
-            );
-            lanes_match(mask, &out, |k| {
+            let want = |k: usize| {
                 (k < count).then(|| {
                     let [a, b, c] = corners[first + k];
                     raymesh_geometry::intersect_triangle(&ray, tmax, a, b, c)
                 })?
-            })?;
+            };
+            let (mask, out) = crate::Primitives::intersect_block(
+                &tris, first as u32, count as u32, &ray, tmax,
+            );
+            lanes_match(mask, &out, want)?;
+            // The form the 8-wide walk inlines, its constants made once.
+            let avx = Avx2::detect().expect("AVX2, kernels on");
+            let pre = crate::Primitives::block_ray(&tris, &ray);
+            let (mask, out) = crate::Primitives::intersect_block_pre(
+                &tris, avx, &pre, first as u32, count as u32, &ray, tmax,
+            );
+            lanes_match(mask, &out, want)?;
         }
     }
 

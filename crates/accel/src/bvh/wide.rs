@@ -829,6 +829,14 @@ pub struct BoxRay {
     pub(crate) inv_dir: [f32; 3],
     pub(crate) neg: [bool; 3],
     pub(crate) tmin: f32,
+    /// For each axis, the row of a node's bounds that holds the plane the
+    /// ray meets first: `a` (lower bounds) or `3 + a` (upper), counting
+    /// the rows as they lie in [`WideNode`]. Chosen once per ray, so that
+    /// the AVX node test loads its planes by offset instead of choosing
+    /// each with a conditional move at every node.
+    pub(crate) near: [usize; 3],
+    /// For each axis, the other row: the plane the ray leaves by.
+    pub(crate) far: [usize; 3],
 }
 
 impl BoxRay {
@@ -841,6 +849,8 @@ impl BoxRay {
             inv_dir: ray.inv_dir().to_array(),
             neg: [oct & 1 != 0, oct & 2 != 0, oct & 4 != 0],
             tmin: ray.tmin(),
+            near: [0, 1, 2].map(|a| a + 3 * ((oct >> a) & 1)),
+            far: [0, 1, 2].map(|a| a + 3 * (!oct >> a & 1)),
         }
     }
 }
