@@ -234,7 +234,7 @@ impl<P: Primitives> Scene<P> {
         avx: Avx2,
         ray: &Ray,
         counter: &mut C,
-    ) -> Option<Hit> {
+    ) -> Option<(u32, PrimHit)> {
         let mut found = None;
         if !ray.is_valid() {
             return None;
@@ -250,7 +250,7 @@ impl<P: Primitives> Scene<P> {
                 ray.tmax()
             }
         });
-        found.map(|(prim, h)| self.hit(prim, ray, h))
+        found
     }
 
     /// Takes hit `h` of primitive `prim` (with `h.t <= tmax`) as the
@@ -381,7 +381,8 @@ impl<P: Primitives> Scene<P> {
 
     /// Any hit, counting nodes visited and primitives tested.
     pub fn occluded_counted<C: RayCounter>(&self, ray: &Ray, counter: &mut C) -> bool {
-        self.any_hit_counted(ray, counter).is_some()
+        // The primitive and its hit only: no `Hit` made, no normal computed.
+        self.first_hit(ray, counter).is_some()
     }
 
     /// The first hit the traversal finds (not necessarily the closest).
@@ -391,6 +392,13 @@ impl<P: Primitives> Scene<P> {
 
     /// [`Self::any_hit`], counting nodes visited and primitives tested.
     pub fn any_hit_counted<C: RayCounter>(&self, ray: &Ray, counter: &mut C) -> Option<Hit> {
+        self.first_hit(ray, counter)
+            .map(|(prim, h)| self.hit(prim, ray, h))
+    }
+
+    /// The primitive (in storage order) and hit of [`Self::any_hit_counted`].
+    #[inline(always)]
+    fn first_hit<C: RayCounter>(&self, ray: &Ray, counter: &mut C) -> Option<(u32, PrimHit)> {
         if let (Some(WideRef::W8(bvh)), Some(avx)) = (self.wide_blocks(), Avx2::detect()) {
             return self.any_avx2(bvh, avx, ray, counter);
         }
@@ -400,7 +408,7 @@ impl<P: Primitives> Scene<P> {
     /// [`Self::any_hit_counted`] on every path but [`Self::any_avx2`]'s,
     /// apart for the same reason as [`Self::closest_general`].
     #[inline(never)]
-    fn any_general<C: RayCounter>(&self, ray: &Ray, counter: &mut C) -> Option<Hit> {
+    fn any_general<C: RayCounter>(&self, ray: &Ray, counter: &mut C) -> Option<(u32, PrimHit)> {
         let mut found: Option<(u32, PrimHit)> = None;
         if let Some(wide) = self.wide_blocks() {
             let mut block = |first: u32, count: u32| {
@@ -433,7 +441,7 @@ impl<P: Primitives> Scene<P> {
                     None => ray.tmax(),
                 });
         }
-        found.map(|(prim, h)| self.hit(prim, ray, h))
+        found
     }
 
     fn hit(&self, prim: u32, ray: &Ray, h: PrimHit) -> Hit {
