@@ -93,9 +93,10 @@ pub trait Primitives: Send + Sync {
         BlockRay::default()
     }
     /// [`Self::intersect_block`] inside a traversal compiled for AVX2
-    /// (the `Avx2` proof), with the ray's constants from
-    /// [`Self::block_ray`]: the same results. Triangles inline their
-    /// kernel there with nothing recomputed per block; the default calls
+    /// (the `Avx2` proof), with `pre` = [`Self::block_ray`] of the same
+    /// primitives and `ray`: the same results. Triangles inline their
+    /// kernel there with nothing recomputed per block (and panic if `pre`
+    /// was made for other triangles' rows); the default calls
     /// [`Self::intersect_block`].
     #[inline(always)]
     fn intersect_block_pre(
@@ -448,6 +449,11 @@ impl Primitives for Triangles {
             let count = (count as usize).min(BLOCK);
             let first = first as usize;
             assert!(first + count <= self.len);
+            assert_eq!(
+                pre.stride(),
+                self.stride(),
+                "a BlockRay made for other rows"
+            );
             let (mask, redo, mut out) =
                 crate::simd::triangles8_pre(avx, &self.data, first, count, pre, tmax);
             if redo == 0 {

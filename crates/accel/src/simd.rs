@@ -485,8 +485,9 @@ pub struct BlockRay {
     origin: [f32; 3],
     tmin: f32,
     rows: [usize; 9],
-    /// The largest of `rows`: row 8 (corner 2's axis 2) is always read.
-    reach: usize,
+    /// The distance between rows these offsets were made for; the
+    /// largest offset is row 8's (corner 2's axis 2, always read).
+    stride: usize,
 }
 
 impl BlockRay {
@@ -499,8 +500,14 @@ impl BlockRay {
             origin: ray.permute(ray.origin()).to_array(),
             tmin: ray.tmin(),
             rows: std::array::from_fn(|r| (3 * (r / 3) + k[r % 3]) * stride),
-            reach: 8 * stride,
+            stride,
         }
+    }
+
+    /// The row stride these constants were made for.
+    #[inline(always)]
+    pub(crate) fn stride(&self) -> usize {
+        self.stride
     }
 }
 
@@ -518,10 +525,10 @@ pub(crate) fn triangles8_pre(
     tr: &BlockRay,
     tmax: f32,
 ) -> (u32, u32, BlockHits) {
-    // The farthest row read starts at `reach`; its 8 lanes from `first`
-    // must lie inside `data`.
-    assert!(first + tr.reach + 8 <= data.len());
-    // SAFETY: every row offset is at most `reach`, so each load of 8
+    // The farthest row read starts at row 8's offset; its 8 lanes from
+    // `first` must lie inside `data`.
+    assert!(first + 8 * tr.stride + 8 <= data.len());
+    // SAFETY: every row offset is at most row 8's, so each load of 8
     // lanes from `first` stays inside `data` (asserted); the CPU has AVX2
     // (the `Avx2` proof).
     let (hit, redo, out) = unsafe {
@@ -777,6 +784,29 @@ mod tests {
             }
         }
         Ok(())
+    }
+
+    /// A `BlockRay` made for other triangles' rows (another stride) is
+    /// refused, not used to read the wrong corners; its own rows' one
+    /// finds the hit.
+    #[test]
+    fn block_ray_for_other_rows_is_refused() {
+        use crate::{Primitives, Triangles};
+        let Some(avx) = Avx2::detect() else { return };
+        let tri = [Vec3::ZERO, Vec3::X, Vec3::Y];
+        let one = Triangles::from_corners(&[tri]);
+        let many = Triangles::from_corners(&[tri; 20]);
+        let ray = Ray::new(Vec3::new(0.2, 0.2, -1.0), Vec3::Z, 0.0, f32::INFINITY);
+        // Rows closer together than `many`'s: every read would stay
+        // inside `many`'s rows, at the wrong corners.
+        let other = one.block_ray(&ray);
+        let refused = std::panic::catch_unwind(|| {
+            many.intersect_block_pre(avx, &other, 0, 8, &ray, f32::INFINITY)
+        });
+        assert!(refused.is_err());
+        let own = many.block_ray(&ray);
+        let (mask, hits) = many.intersect_block_pre(avx, &own, 0, 8, &ray, f32::INFINITY);
+        assert_eq!((mask, hits.t), (0xff, [1.0; 8]));
     }
 
     /// Lattice coordinates make edge functions round to exactly zero
