@@ -202,6 +202,13 @@ impl<P: Primitives> Scene<P> {
     /// AVX2 ([`Bvh8::traverse_blocks`]), so the block test
     /// ([`Primitives::intersect_block_pre`]) inlines into it, with the
     /// ray's constants computed once.
+    ///
+    /// The kernel inlines only while everything between `with_avx2` and
+    /// it is `#[inline(always)]` or a closure called from one place: the
+    /// binary walk, instantiated for two stack sizes, calls its leaf
+    /// closure from two, and there every intrinsic became a call (2.5
+    /// times slower). A `bvh8` that slows down that much after an
+    /// unrelated change is worth checking for that first.
     #[inline(never)]
     fn closest_avx2<C: RayCounter>(
         &self,
