@@ -332,7 +332,10 @@ impl<const W: usize> WideBvh<W> {
     ) {
         let r = BoxRay::new(ray);
         let tmin = ray.tmin();
-        let mut tmax = ray.tmax();
+        // The bound boxes are culled against, `cull_bound` of the best
+        // hit's `t`: kept up to date at each leaf rather than recomputed at
+        // every node and pop.
+        let mut bound = cull_bound(ray.tmax());
         let mut stack = Stack::new(Entry::NONE);
         // The item being visited: the nearest child entered goes straight
         // here instead of through the stack (one push and pop fewer per
@@ -347,15 +350,16 @@ impl<const W: usize> WideBvh<W> {
                 for _ in 0..cur.count {
                     counter.prim();
                 }
-                tmax = block(cur.child, cur.count);
+                let tmax = block(cur.child, cur.count);
                 if tmax < tmin {
                     return;
                 }
+                bound = cull_bound(tmax);
             } else {
                 counter.node();
                 let i = cur.child as usize;
                 let mut t = [0.0f32; W];
-                let mut mask = test(i, &r, cull_bound(tmax), &mut t);
+                let mut mask = test(i, &r, bound, &mut t);
                 let n = &self.nodes[i];
                 // The lowest child left in `mask`, taken out of it.
                 let take = |mask: &mut u32| {
@@ -419,7 +423,7 @@ impl<const W: usize> WideBvh<W> {
             // Pop the next item still in reach; equal entries stay (ties by index).
             loop {
                 let Some(e) = stack.pop() else { return };
-                if e.entry <= cull_bound(tmax) {
+                if e.entry <= bound {
                     cur = e;
                     break;
                 }
@@ -916,8 +920,11 @@ const INLINE: usize = 32;
 /// A traversal stack: a small inline array (cheap to set up per ray) that
 /// spills to a `Vec` on degenerate trees, so no depth bound is needed.
 pub(super) struct Stack<T> {
+    /// The first [`INLINE`] items.
     items: [T; INLINE],
+    /// Items on the stack, inline and spilled.
     len: usize,
+    /// Items past the first [`INLINE`], in push order.
     spill: Vec<T>,
 }
 
@@ -936,28 +943,46 @@ impl<T: Copy> Stack<T> {
     pub(super) fn push(&mut self, e: T) {
         if self.len < INLINE {
             self.items[self.len] = e;
-            self.len += 1;
         } else {
             self.spill.push(e);
         }
+        self.len += 1;
     }
 
+    /// `len` counts every item, so a pop from the inline array (nearly
+    /// all of them) decides by `len` alone, without reading the spill.
     #[inline(always)]
     pub(super) fn pop(&mut self) -> Option<T> {
-        if !self.spill.is_empty() {
-            return self.spill.pop();
-        }
         if self.len == 0 {
             return None;
         }
         self.len -= 1;
-        Some(self.items[self.len])
+        if self.len < INLINE {
+            Some(self.items[self.len])
+        } else {
+            self.spill.pop()
+        }
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Pops give back every push in reverse order, across the spill.
+    #[test]
+    fn stack_is_lifo_across_the_spill() {
+        let mut st = Stack::new(0usize);
+        for round in 0..2 {
+            for i in 0..3 * INLINE {
+                st.push(i);
+            }
+            for i in (0..3 * INLINE).rev() {
+                assert_eq!(st.pop(), Some(i), "round {round}");
+            }
+            assert_eq!(st.pop(), None);
+        }
+    }
 
     /// The wide node of binary node `at` and those below it, made by one
     /// depth-first walk that appends each node as it comes: the layout
