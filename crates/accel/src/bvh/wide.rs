@@ -309,27 +309,29 @@ impl<const W: usize> WideBvh<W> {
         #[cfg(target_arch = "x86_64")]
         if W == 8 && simd::has_avx2() {
             return simd::with_avx2(|| {
-                self.traverse_with::<ORDERED, C>(ray, counter, block, |i, r, bound, t| {
-                    simd::slab8(&self.nodes[i], r, bound, t)
+                self.traverse_with::<ORDERED, C>(ray, counter, block, |n, r, bound, t| {
+                    simd::slab8(n, r, bound, t)
                 })
             });
         }
-        self.traverse_with::<ORDERED, C>(ray, counter, block, |i, r, bound, t| {
-            slab_scalar(&self.nodes[i], r, bound, t)
+        self.traverse_with::<ORDERED, C>(ray, counter, block, |n, r, bound, t| {
+            slab_scalar(n, r, bound, t)
         });
     }
 
     /// The traversal loop, generic over the node test (`test(node, ray,
     /// bound, entries) -> hit mask`); `ORDERED` visits entered children
-    /// nearest first.
+    /// nearest first. The nodes are read through a local slice, so that
+    /// each visit checks its index once.
     #[inline(always)]
     fn traverse_with<const ORDERED: bool, C: RayCounter>(
         &self,
         ray: &Ray,
         counter: &mut C,
         block: &mut impl FnMut(u32, u32) -> f32,
-        test: impl Fn(usize, &BoxRay, f32, &mut [f32; W]) -> u32,
+        test: impl Fn(&WideNode<W>, &BoxRay, f32, &mut [f32; W]) -> u32,
     ) {
+        let nodes: &[WideNode<W>] = &self.nodes;
         let r = BoxRay::new(ray);
         let tmin = ray.tmin();
         // The bound boxes are culled against, `cull_bound` of the best
@@ -359,8 +361,8 @@ impl<const W: usize> WideBvh<W> {
                 counter.node();
                 let i = cur.child as usize;
                 let mut t = [0.0f32; W];
-                let mut mask = test(i, &r, bound, &mut t);
-                let n = &self.nodes[i];
+                let n = &nodes[i];
+                let mut mask = test(n, &r, bound, &mut t);
                 // The lowest child left in `mask`, taken out of it.
                 let take = |mask: &mut u32| {
                     let k = mask.trailing_zeros() as usize;
@@ -390,7 +392,7 @@ impl<const W: usize> WideBvh<W> {
                         // Two children entered, the commonest case after
                         // one: that comparison instead of the sort.
                         if far.count == 0 {
-                            simd::prefetch(&self.nodes[far.child as usize]);
+                            simd::prefetch(&nodes[far.child as usize]);
                         }
                         stack.push(far);
                         cur = near;
@@ -412,7 +414,7 @@ impl<const W: usize> WideBvh<W> {
                     }
                     for item in &hits[..h - 1] {
                         if item.count == 0 {
-                            simd::prefetch(&self.nodes[item.child as usize]);
+                            simd::prefetch(&nodes[item.child as usize]);
                         }
                         stack.push(*item);
                     }
