@@ -191,6 +191,26 @@ fn intersect_each<P: Primitives + ?Sized>(
     mask
 }
 
+/// A SIMD block test's result `(mask, redo, out)` completed: the lanes
+/// in `redo`, whose edge function rounded to exactly zero, take the
+/// scalar test's f64 path (lane `k` is primitive `prim(k)`).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn redo_lanes<P: Primitives + ?Sized>(
+    prims: &P,
+    prim: impl Fn(usize) -> u32,
+    (mask, redo, mut out): (u32, u32, BlockHits),
+    ray: &Ray,
+    tmax: f32,
+) -> (u32, BlockHits) {
+    if redo == 0 {
+        return (mask, out);
+    }
+    let lanes = (0..BLOCK).filter(|k| redo >> k & 1 != 0);
+    let more = intersect_each(prims, prim, lanes, ray, tmax, &mut out);
+    (mask | more, out)
+}
+
 /// Triangles sharing one vertex buffer: the lecture's TriangleMesh.
 #[derive(Clone, Debug, Default)]
 pub struct TriangleMesh {
@@ -415,16 +435,8 @@ impl Primitives for Triangles {
         assert!(first + count <= self.len);
         #[cfg(target_arch = "x86_64")]
         if crate::simd::has_avx2() {
-            let (mask, redo, mut out) =
-                crate::simd::triangles8(&self.data, self.stride(), first, count, ray, tmax);
-            if redo == 0 {
-                return (mask, out);
-            }
-            // Lanes whose edge function rounded to zero take the scalar
-            // test's f64 path.
-            let lanes = (0..count).filter(|k| redo >> k & 1 != 0);
-            let more = intersect_each(self, |k| (first + k) as u32, lanes, ray, tmax, &mut out);
-            return (mask | more, out);
+            let block = crate::simd::triangles8(&self.data, self.stride(), first, count, ray, tmax);
+            return redo_lanes(self, |k| (first + k) as u32, block, ray, tmax);
         }
         let mut out = BlockHits::default();
         let mask = intersect_each(self, |k| (first + k) as u32, 0..count, ray, tmax, &mut out);
@@ -454,16 +466,8 @@ impl Primitives for Triangles {
                 self.stride(),
                 "a BlockRay made for other rows"
             );
-            let (mask, redo, mut out) =
-                crate::simd::triangles8_pre(avx, &self.data, first, count, pre, tmax);
-            if redo == 0 {
-                return (mask, out);
-            }
-            // Lanes whose edge function rounded to zero take the scalar
-            // test's f64 path.
-            let lanes = (0..count).filter(|k| redo >> k & 1 != 0);
-            let more = intersect_each(self, |k| (first + k) as u32, lanes, ray, tmax, &mut out);
-            (mask | more, out)
+            let block = crate::simd::triangles8_pre(avx, &self.data, first, count, pre, tmax);
+            redo_lanes(self, |k| (first + k) as u32, block, ray, tmax)
         }
         #[cfg(not(target_arch = "x86_64"))]
         {
@@ -488,16 +492,9 @@ impl Primitives for Triangles {
                     row[k] = self.data[r * s + i];
                 }
             }
-            let (mask, redo, mut out) =
+            let block =
                 crate::simd::triangles8(rows.as_flattened(), BLOCK, 0, ids.len(), ray, tmax);
-            if redo == 0 {
-                return (mask, out);
-            }
-            // Lanes whose edge function rounded to zero take the scalar
-            // test's f64 path.
-            let lanes = (0..ids.len()).filter(|k| redo >> k & 1 != 0);
-            let more = intersect_each(self, |k| ids[k], lanes, ray, tmax, &mut out);
-            return (mask | more, out);
+            return redo_lanes(self, |k| ids[k], block, ray, tmax);
         }
         let mut out = BlockHits::default();
         let mask = intersect_each(self, |k| ids[k], 0..ids.len(), ray, tmax, &mut out);
