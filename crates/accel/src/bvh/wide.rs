@@ -338,6 +338,9 @@ impl<const W: usize> WideBvh<W> {
         // hit's `t`: kept up to date at each leaf rather than recomputed at
         // every node and pop.
         let mut bound = cull_bound(ray.tmax());
+        // After a spill the inline part must take a whole node's pushes,
+        // or the walk would spill forever.
+        const { assert!(W <= INLINE) };
         let mut stack = WalkStack::new();
         // The item being visited: the nearest child entered goes straight
         // here instead of through the stack (one push and pop fewer per
