@@ -151,6 +151,31 @@ pub(crate) fn slab(
     max: [f32; 3],
     bound: &[f32; LANES],
 ) -> (u32, [f32; LANES]) {
+    let (near, far) = planes(p, min, max);
+    #[cfg(target_arch = "x86_64")]
+    if crate::simd::has_avx2() {
+        return crate::simd::packet_slab8([&p.origin, &p.inv_dir], &p.tmin, near, far, bound);
+    }
+    slab_lanes(p, near, far, bound)
+}
+
+/// [`slab_lanes`] in AVX inside an AVX2 traversal (the `Avx2` proof in
+/// place of a check per box): the same bits.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) fn slab_avx(
+    avx: crate::simd::Avx2,
+    p: &Packet8,
+    near: [f32; 3],
+    far: [f32; 3],
+    bound: &[f32; LANES],
+) -> (u32, [f32; LANES]) {
+    crate::simd::packet_slab8_pre(avx, [&p.origin, &p.inv_dir], &p.tmin, near, far, bound)
+}
+
+/// A box's near and far plane on each axis for the packet's octant.
+#[inline(always)]
+pub(crate) fn planes(p: &Packet8, min: [f32; 3], max: [f32; 3]) -> ([f32; 3], [f32; 3]) {
     let pick = |a: usize| {
         if p.neg[a] {
             (max[a], min[a])
@@ -158,12 +183,7 @@ pub(crate) fn slab(
             (min[a], max[a])
         }
     };
-    let (near, far) = ([0, 1, 2].map(|a| pick(a).0), [0, 1, 2].map(|a| pick(a).1));
-    #[cfg(target_arch = "x86_64")]
-    if crate::simd::has_avx2() {
-        return crate::simd::packet_slab8([&p.origin, &p.inv_dir], &p.tmin, near, far, bound);
-    }
-    slab_lanes(p, near, far, bound)
+    ([0, 1, 2].map(|a| pick(a).0), [0, 1, 2].map(|a| pick(a).1))
 }
 
 /// [`slab`]'s portable loop, given each axis's near and far plane.

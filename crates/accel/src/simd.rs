@@ -310,6 +310,25 @@ pub(crate) fn packet_slab8(
     (mask, e)
 }
 
+/// [`packet_slab8`] of a packet's lanes inside an AVX2 traversal (the
+/// `Avx2` proof in place of the check).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) fn packet_slab8_pre(
+    _avx: Avx2,
+    rows: [&[[f32; 8]; 3]; 2],
+    tmin: &[f32; 8],
+    near: [f32; 3],
+    far: [f32; 3],
+    bound: &[f32; 8],
+) -> (u32, [f32; 8]) {
+    let mut e = [0.0f32; 8];
+    // SAFETY: every pointer addresses 8 floats (the array types say so),
+    // and the CPU has AVX2 (the `Avx2` proof).
+    let mask = unsafe { packet_slab8_avx(rows, tmin, near, far, bound, &mut e) };
+    (mask, e)
+}
+
 /// # Safety
 /// The CPU must have AVX.
 #[cfg(target_arch = "x86_64")]

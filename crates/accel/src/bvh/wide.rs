@@ -475,18 +475,27 @@ impl<const W: usize> WideBvh<W> {
             return;
         }
         #[cfg(target_arch = "x86_64")]
-        if simd::has_avx2() {
-            return simd::with_avx2(|| self.packet_loop(p, tmax, leaf));
+        if let Some(avx) = simd::Avx2::detect() {
+            return simd::with_avx2(|| {
+                self.packet_loop(p, tmax, leaf, |p, near, far, bound| {
+                    packet::slab_avx(avx, p, near, far, bound)
+                })
+            });
         }
-        self.packet_loop(p, tmax, leaf);
+        self.packet_loop(p, tmax, leaf, packet::slab_lanes);
     }
 
+    /// The packet walk, generic over each child's test of the packet's
+    /// lanes (`test(packet, near planes, far planes, bounds)`, as
+    /// [`packet::slab_lanes`]), so that the AVX2 walk makes no check per
+    /// child.
     #[inline(always)]
     fn packet_loop(
         &self,
         p: &Packet8,
         tmax: &mut [f32; LANES],
         leaf: &mut impl FnMut(u32, u32, u32, &mut [f32; LANES]),
+        test: impl Fn(&Packet8, [f32; 3], [f32; 3], &[f32; LANES]) -> (u32, [f32; LANES]),
     ) {
         let mut stack = Stack::new(PacketEntry::NONE);
         let mut cur = PacketEntry {
@@ -524,7 +533,8 @@ impl<const W: usize> WideBvh<W> {
                         kept &= kept - 1;
                         let min = [n.min[0][c], n.min[1][c], n.min[2][c]];
                         let max = [n.max[0][c], n.max[1][c], n.max[2][c]];
-                        let (m, entry) = packet::slab(p, min, max, &bound);
+                        let (near, far) = packet::planes(p, min, max);
+                        let (m, entry) = test(p, near, far, &bound);
                         let m = m & lanes;
                         if m == 0 {
                             continue;
