@@ -153,8 +153,8 @@ pub(crate) fn slab(
 ) -> (u32, [f32; LANES]) {
     let (near, far) = planes(p, min, max);
     #[cfg(target_arch = "x86_64")]
-    if crate::simd::has_avx2() {
-        return crate::simd::packet_slab8([&p.origin, &p.inv_dir], &p.tmin, near, far, bound);
+    if let Some(avx) = crate::simd::Avx2::detect() {
+        return slab_avx(avx, p, near, far, bound);
     }
     slab_lanes(p, near, far, bound)
 }
@@ -170,7 +170,7 @@ pub(crate) fn slab_avx(
     far: [f32; 3],
     bound: &[f32; LANES],
 ) -> (u32, [f32; LANES]) {
-    crate::simd::packet_slab8_pre(avx, [&p.origin, &p.inv_dir], &p.tmin, near, far, bound)
+    crate::simd::packet_slab8(avx, [&p.origin, &p.inv_dir], &p.tmin, near, far, bound)
 }
 
 /// A box's near and far plane on each axis for the packet's octant.

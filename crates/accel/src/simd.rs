@@ -290,31 +290,13 @@ unsafe fn pair_slab_avx(pair: &NodePair, r: &PairRay, bound: f32) -> (u32, f32, 
 }
 
 /// The slab test of one box against the eight rays of a packet in AVX
-/// (one ray a lane, the box's `near` and `far` planes shared): the same
-/// entry distances and mask as [`crate::packet::slab_lanes`], bit for bit
-/// (`packet.rs`'s tests compare them). Panics without AVX2.
+/// (one ray a lane, the box's `near` and `far` planes shared), on a CPU
+/// with AVX2 (the `Avx2` proof): the same entry distances and mask as
+/// [`crate::packet::slab_lanes`], bit for bit (`packet.rs`'s tests compare
+/// them).
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 pub(crate) fn packet_slab8(
-    rows: [&[[f32; 8]; 3]; 2],
-    tmin: &[f32; 8],
-    near: [f32; 3],
-    far: [f32; 3],
-    bound: &[f32; 8],
-) -> (u32, [f32; 8]) {
-    assert!(cpu_has_avx2());
-    let mut e = [0.0f32; 8];
-    // SAFETY: every pointer addresses 8 floats (the array types say so),
-    // and the CPU has AVX2 (asserted).
-    let mask = unsafe { packet_slab8_avx(rows, tmin, near, far, bound, &mut e) };
-    (mask, e)
-}
-
-/// [`packet_slab8`] of a packet's lanes inside an AVX2 traversal (the
-/// `Avx2` proof in place of the check).
-#[cfg(target_arch = "x86_64")]
-#[inline(always)]
-pub(crate) fn packet_slab8_pre(
     _avx: Avx2,
     rows: [&[[f32; 8]; 3]; 2],
     tmin: &[f32; 8],
