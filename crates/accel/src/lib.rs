@@ -39,7 +39,7 @@ pub use prims::{
     BlockHits, PrimHit, Primitives, Shape, Shapes, Spheres, TriangleMesh, Triangles, BLOCK,
 };
 pub use raymesh_geometry::{Aabb, Ray, Vec3};
-pub use scene::{Hit, Scene, Surface};
+pub use scene::{BareHit, Hit, Scene, Surface};
 pub use simd::{set_simd_enabled, Avx2, BlockRay};
 pub use stats::{AccelStats, CountStats, NoStats, RayCounter};
 

@@ -27,6 +27,34 @@ pub struct Hit {
     pub normal: Vec3,
 }
 
+/// A hit without its normal: what a ray-casting record holds
+/// (`../shared/BENCH.md`'s `t, prim, u, v`). [`Scene::intersect_bare`]
+/// and [`Scene::any_hit_bare`] make one without computing the normal a
+/// [`Hit`] carries (the triangle's corners read again, a cross product
+/// and a square root).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BareHit {
+    /// Ray parameter of the hit.
+    pub t: f32,
+    /// Index of the primitive hit.
+    pub prim: u32,
+    /// First surface coordinate (weight of a triangle's 2nd corner).
+    pub u: f32,
+    /// Second surface coordinate (weight of a triangle's 3rd corner).
+    pub v: f32,
+}
+
+impl From<Hit> for BareHit {
+    fn from(h: Hit) -> Self {
+        Self {
+            t: h.t,
+            prim: h.prim,
+            u: h.u,
+            v: h.v,
+        }
+    }
+}
+
 /// What anything a ray can hit answers: the lecture's Surface.
 pub trait Surface: Send + Sync {
     /// Bounds of the whole surface.
@@ -164,6 +192,26 @@ impl<P: Primitives> Scene<P> {
 
     /// Closest hit, counting nodes visited and primitives tested.
     pub fn intersect_counted<C: RayCounter>(&self, ray: &Ray, counter: &mut C) -> Option<Hit> {
+        self.closest(ray, counter)
+            .map(|(prim, h)| self.hit(prim, ray, h))
+    }
+
+    /// [`Surface::intersect`] without the normal: the same hit, for callers
+    /// that record hits rather than shade them (`raymesh raycast`).
+    pub fn intersect_bare(&self, ray: &Ray) -> Option<BareHit> {
+        self.closest(ray, &mut NoStats)
+            .map(|(prim, h)| self.bare(prim, h))
+    }
+
+    /// [`Self::any_hit`] without the normal: the same hit.
+    pub fn any_hit_bare(&self, ray: &Ray) -> Option<BareHit> {
+        self.first_hit(ray, &mut NoStats)
+            .map(|(prim, h)| self.bare(prim, h))
+    }
+
+    /// The closest hit's primitive (in storage order) and hit.
+    #[inline(always)]
+    fn closest<C: RayCounter>(&self, ray: &Ray, counter: &mut C) -> Option<(u32, PrimHit)> {
         if let (Some(WideRef::W8(bvh)), Some(avx)) = (self.wide_blocks(), Avx2::detect()) {
             return self.closest_avx2(bvh, avx, ray, counter);
         }
@@ -175,7 +223,7 @@ impl<P: Primitives> Scene<P> {
     /// not there (sharing one function, the k-d tree's walk took 4% more
     /// instructions).
     #[inline(never)]
-    fn closest_general<C: RayCounter>(&self, ray: &Ray, counter: &mut C) -> Option<Hit> {
+    fn closest_general<C: RayCounter>(&self, ray: &Ray, counter: &mut C) -> Option<(u32, PrimHit)> {
         let mut best: Option<(u32, PrimHit)> = None;
         let mut tmax = ray.tmax();
         if let Some(wide) = self.wide_blocks() {
@@ -194,7 +242,7 @@ impl<P: Primitives> Scene<P> {
                 tmax
             });
         }
-        best.map(|(prim, h)| self.hit(prim, ray, h))
+        best
     }
 
     /// The closest hit over an 8-wide BVH on a CPU with AVX2 (the `Avx2`
@@ -216,7 +264,7 @@ impl<P: Primitives> Scene<P> {
         avx: Avx2,
         ray: &Ray,
         counter: &mut C,
-    ) -> Option<Hit> {
+    ) -> Option<(u32, PrimHit)> {
         let mut best = None;
         if !ray.is_valid() {
             return None;
@@ -229,7 +277,7 @@ impl<P: Primitives> Scene<P> {
             });
             tmax
         });
-        best.map(|(prim, h)| self.hit(prim, ray, h))
+        best
     }
 
     /// [`Self::closest_avx2`] for any-hit queries, for
@@ -451,6 +499,16 @@ impl<P: Primitives> Scene<P> {
         found
     }
 
+    /// The [`BareHit`] of hit `h` of primitive `prim` (in storage order).
+    fn bare(&self, prim: u32, h: PrimHit) -> BareHit {
+        BareHit {
+            t: h.t,
+            prim: self.original_index(prim),
+            u: h.u,
+            v: h.v,
+        }
+    }
+
     fn hit(&self, prim: u32, ray: &Ray, h: PrimHit) -> Hit {
         Hit {
             t: h.t,
@@ -470,8 +528,20 @@ impl<P: Primitives> Scene<P> {
     /// rays at once. Other rays, and other structures, are traced one by
     /// one.
     pub fn intersect8(&self, rays: &[Ray; LANES]) -> [Option<Hit>; LANES] {
+        let best = self.closest8(rays);
+        std::array::from_fn(|i| best[i].map(|(prim, h)| self.hit(prim, &rays[i], h)))
+    }
+
+    /// [`Self::intersect8`] without the normals: the same hits.
+    pub fn intersect8_bare(&self, rays: &[Ray; LANES]) -> [Option<BareHit>; LANES] {
+        self.closest8(rays)
+            .map(|b| b.map(|(prim, h)| self.bare(prim, h)))
+    }
+
+    /// The primitives (in storage order) and hits of [`Self::intersect8`].
+    fn closest8(&self, rays: &[Ray; LANES]) -> [Option<(u32, PrimHit)>; LANES] {
         let (Some(wide), Some(p)) = (self.wide_blocks(), Packet8::new(rays)) else {
-            return rays.each_ref().map(|r| self.intersect(r));
+            return rays.each_ref().map(|r| self.closest(r, &mut NoStats));
         };
         let mut best: [Option<(u32, PrimHit)>; LANES] = [None; LANES];
         let mut tmax: [f32; LANES] = std::array::from_fn(|i| rays[i].tmax());
@@ -505,7 +575,7 @@ impl<P: Primitives> Scene<P> {
             WideRef::W8(b) => b.traverse_packet(&p, &mut tmax, &mut leaf),
             WideRef::W2(b) => b.traverse_packet(&p, &mut tmax, &mut leaf),
         }
-        std::array::from_fn(|i| best[i].map(|(prim, h)| self.hit(prim, &rays[i], h)))
+        best
     }
 
     /// The closest hits of many rays: `out[i]` is [`Self::intersect`] of
@@ -520,17 +590,7 @@ impl<P: Primitives> Scene<P> {
     /// one.
     pub fn intersect_stream(&self, rays: &[Ray], out: &mut [Option<Hit>]) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
-        let Some(WideRef::W2(bvh)) = self.wide_blocks() else {
-            for (o, r) in out.iter_mut().zip(rays) {
-                *o = self.intersect(r);
-            }
-            return;
-        };
-        let mut best: Vec<Option<(u32, PrimHit)>> = vec![None; rays.len()];
-        bvh.traverse_stream(rays, &mut |i, first, count, mut tmax| {
-            self.leaf_closest(&rays[i], first, count, &mut tmax, &mut best[i]);
-            tmax
-        });
+        let best = self.stream(rays, false);
         for ((o, r), b) in out.iter_mut().zip(rays).zip(best) {
             *o = b.map(|(prim, h)| self.hit(prim, r, h));
         }
@@ -540,24 +600,54 @@ impl<P: Primitives> Scene<P> {
     /// [`Self::intersect_stream`] traces them.
     pub fn any_hit_stream(&self, rays: &[Ray], out: &mut [Option<Hit>]) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
-        let Some(WideRef::W2(bvh)) = self.wide_blocks() else {
-            for (o, r) in out.iter_mut().zip(rays) {
-                *o = self.any_hit(r);
-            }
-            return;
-        };
-        let mut found: Vec<Option<(u32, PrimHit)>> = vec![None; rays.len()];
-        bvh.traverse_stream(rays, &mut |i, first, count, tmax| {
-            found[i] = self.leaf_any(&rays[i], first, count);
-            if found[i].is_some() {
-                f32::NEG_INFINITY
-            } else {
-                tmax
-            }
-        });
+        let found = self.stream(rays, true);
         for ((o, r), f) in out.iter_mut().zip(rays).zip(found) {
             *o = f.map(|(prim, h)| self.hit(prim, r, h));
         }
+    }
+
+    /// [`Self::intersect_stream`] (or, with `any_hit`,
+    /// [`Self::any_hit_stream`]) without the normals: the same hits.
+    pub fn stream_bare(&self, rays: &[Ray], any_hit: bool, out: &mut [Option<BareHit>]) {
+        assert_eq!(rays.len(), out.len(), "one output per ray");
+        for (o, b) in out.iter_mut().zip(self.stream(rays, any_hit)) {
+            *o = b.map(|(prim, h)| self.bare(prim, h));
+        }
+    }
+
+    /// The primitives (in storage order) and hits of
+    /// [`Self::intersect_stream`], or with `any_hit` of
+    /// [`Self::any_hit_stream`].
+    fn stream(&self, rays: &[Ray], any_hit: bool) -> Vec<Option<(u32, PrimHit)>> {
+        let Some(WideRef::W2(bvh)) = self.wide_blocks() else {
+            return rays
+                .iter()
+                .map(|r| {
+                    if any_hit {
+                        self.first_hit(r, &mut NoStats)
+                    } else {
+                        self.closest(r, &mut NoStats)
+                    }
+                })
+                .collect();
+        };
+        let mut found: Vec<Option<(u32, PrimHit)>> = vec![None; rays.len()];
+        if any_hit {
+            bvh.traverse_stream(rays, &mut |i, first, count, tmax| {
+                found[i] = self.leaf_any(&rays[i], first, count);
+                if found[i].is_some() {
+                    f32::NEG_INFINITY
+                } else {
+                    tmax
+                }
+            });
+        } else {
+            bvh.traverse_stream(rays, &mut |i, first, count, mut tmax| {
+                self.leaf_closest(&rays[i], first, count, &mut tmax, &mut found[i]);
+                tmax
+            });
+        }
+        found
     }
 
     /// Closest hit and what it cost.

@@ -8,7 +8,7 @@ use raymesh_accel::*;
 use raymesh_geometry::{Mat4, Sphere};
 
 mod common;
-use common::{hit_bits, load, tri_mesh};
+use common::{bare_bits, bare_of, hit_bits, load, tri_mesh};
 
 const KINDS: [AccelKind; 8] = [
     AccelKind::Aabb,
@@ -75,6 +75,17 @@ fn check_all<P: Primitives + Clone>(prims: &P, rays: &[Ray]) -> usize {
                 s.occluded(r),
                 want_any[i],
                 "{kind}{how}: any hit differs for ray {i}: {r:?}"
+            );
+            // The queries without the normal find the same hits.
+            assert_eq!(
+                bare_bits(s.intersect_bare(r)),
+                bare_of(s.intersect(r)),
+                "{kind}{how}: bare closest hit differs for ray {i}: {r:?}"
+            );
+            assert_eq!(
+                bare_bits(s.any_hit_bare(r)),
+                bare_of(s.any_hit(r)),
+                "{kind}{how}: bare any hit differs for ray {i}: {r:?}"
             );
         }
     }

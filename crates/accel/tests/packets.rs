@@ -9,7 +9,7 @@ use raymesh_accel::*;
 use raymesh_geometry::{Mat4, Sphere};
 
 mod common;
-use common::{hit_bits as key, load, point, soup, tri_mesh, unit_grid};
+use common::{bare_bits, bare_of, hit_bits as key, load, point, soup, tri_mesh, unit_grid};
 
 /// The structures: the wide BVHs take packets, the others fall back.
 const KINDS: [AccelKind; 5] = [
@@ -36,12 +36,29 @@ fn check(s: &dyn Surface, rays: &[Ray], what: &str) -> usize {
     coherent
 }
 
+/// Checks `intersect8_bare` against `intersect8` on each packet of `rays`.
+fn check_bare<P: Primitives>(s: &Scene<P>, rays: &[Ray], what: &str) {
+    for chunk in rays.chunks(LANES) {
+        let packet: [Ray; LANES] = std::array::from_fn(|i| chunk[i % chunk.len()]);
+        let (bare, full) = (s.intersect8_bare(&packet), s.intersect8(&packet));
+        for i in 0..LANES {
+            assert_eq!(
+                bare_bits(bare[i]),
+                bare_of(full[i]),
+                "{what}: bare, lane {i}"
+            );
+        }
+    }
+}
+
 /// Every kind over an indexed mesh, over its corner rows in leaf order
 /// (the renderer's scenes), and over the rows in the mesh's order.
 fn check_mesh(m: &TriangleMesh, rays: &[Ray]) -> usize {
     let mut coherent = 0;
     for kind in KINDS {
-        coherent += check(&Scene::from_mesh(m, kind), rays, &format!("{kind} rows"));
+        let rows = Scene::from_mesh(m, kind);
+        coherent += check(&rows, rays, &format!("{kind} rows"));
+        check_bare(&rows, rays, &format!("{kind} rows"));
         check(
             &Scene::build(m.clone(), kind),
             rays,

@@ -11,7 +11,9 @@ use raymesh_accel::*;
 use raymesh_geometry::Sphere;
 
 mod common;
-use common::{hit_bits as key, load, point, soup, tri_mesh, uniform, unit_grid};
+use common::{
+    bare_bits, bare_of, hit_bits as key, load, point, soup, tri_mesh, uniform, unit_grid,
+};
 
 /// The binary BVHs take streams; the others trace one by one.
 const KINDS: [AccelKind; 6] = [
@@ -34,12 +36,21 @@ fn check<P: Primitives>(s: &Scene<P>, rays: &[Ray], what: &str) -> usize {
         s.intersect_stream(rays, &mut got);
         let mut any = vec![None; n];
         s.any_hit_stream(rays, &mut any);
+        let (mut bare, mut bare_any) = (vec![None; n], vec![None; n]);
+        s.stream_bare(rays, false, &mut bare);
+        s.stream_bare(rays, true, &mut bare_any);
         for (i, r) in rays.iter().enumerate() {
             assert_eq!(key(got[i]), key(s.intersect(r)), "{what}: ray {i}: {r:?}");
             assert_eq!(
                 key(any[i]),
                 key(s.any_hit(r)),
                 "{what}: any hit, ray {i}: {r:?}"
+            );
+            assert_eq!(bare_bits(bare[i]), bare_of(got[i]), "{what}: bare, ray {i}");
+            assert_eq!(
+                bare_bits(bare_any[i]),
+                bare_of(any[i]),
+                "{what}: bare any hit, ray {i}"
             );
         }
         hits = hits.max(got.iter().filter(|h| h.is_some()).count());

@@ -1,7 +1,7 @@
 //! Meshes, hit keys and generators shared by the integration tests.
 
 use proptest::prelude::*;
-use raymesh_accel::{Hit, TriangleMesh, Vec3};
+use raymesh_accel::{BareHit, Hit, TriangleMesh, Vec3};
 use std::path::PathBuf;
 
 /// A mesh from the repository's `tests/data`, fan-triangulated.
@@ -37,6 +37,19 @@ pub fn hit_bits(h: Option<Hit>) -> Option<(u32, u32, u32, u32, u32, [u32; 3])> {
             h.normal.to_array().map(f32::to_bits),
         )
     })
+}
+
+/// A [`BareHit`] as bits (primitive, `t`, `u`, `v`): [`hit_bits`] for the
+/// queries without the normal.
+#[allow(dead_code)]
+pub fn bare_bits(h: Option<BareHit>) -> Option<(u32, u32, u32, u32)> {
+    h.map(|h| (h.prim, h.t.to_bits(), h.u.to_bits(), h.v.to_bits()))
+}
+
+/// A [`Hit`]'s [`bare_bits`]: what a query without the normal must give.
+#[allow(dead_code)]
+pub fn bare_of(h: Option<Hit>) -> Option<(u32, u32, u32, u32)> {
+    bare_bits(h.map(BareHit::from))
 }
 
 /// A point of the cube `[-2, 2]³`.

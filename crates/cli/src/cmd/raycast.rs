@@ -3,7 +3,7 @@
 use crate::npy::{self, HitRecord};
 use anyhow::{Context, Result};
 use raymesh_accel::{
-    AccelKind, BuildConfig, CountStats, Primitives, Ray, Scene, Surface, TriangleMesh, Triangles,
+    AccelKind, BareHit, BuildConfig, CountStats, Primitives, Ray, Scene, TriangleMesh, Triangles,
     LANES,
 };
 use rayon::prelude::*;
@@ -102,18 +102,19 @@ pub fn trace(scene: &Scene<Triangles>, rays: &[Ray], any_hit: bool, out: &mut [H
     out.par_chunks_mut(CHUNK)
         .zip(rays.par_chunks(CHUNK))
         .for_each(|(out, rays)| {
+            // The hits without their normals, which a record leaves out.
             for (o, r) in out.iter_mut().zip(rays) {
                 *o = record(if any_hit {
-                    scene.any_hit(r)
+                    scene.any_hit_bare(r)
                 } else {
-                    scene.intersect(r)
+                    scene.intersect_bare(r)
                 });
             }
         });
 }
 
 /// A hit record of a hit, or [`HitRecord::MISS`].
-fn record(h: Option<raymesh_accel::Hit>) -> HitRecord {
+fn record(h: Option<BareHit>) -> HitRecord {
     h.map_or(HitRecord::MISS, |h| HitRecord {
         t: h.t,
         prim: h.prim as i32,
@@ -130,11 +131,7 @@ pub fn trace_stream(scene: &Scene<Triangles>, rays: &[Ray], any_hit: bool, out: 
         .zip(rays.par_chunks(CHUNK))
         .for_each(|(out, rays)| {
             let mut hits = vec![None; rays.len()];
-            if any_hit {
-                scene.any_hit_stream(rays, &mut hits);
-            } else {
-                scene.intersect_stream(rays, &mut hits);
-            }
+            scene.stream_bare(rays, any_hit, &mut hits);
             for (o, h) in out.iter_mut().zip(hits) {
                 *o = record(h);
             }
@@ -152,12 +149,12 @@ pub fn trace_packets(scene: &Scene<Triangles>, rays: &[Ray], out: &mut [HitRecor
             for packet in rays.chunks(LANES) {
                 let o = outs.next().expect("as many records as rays");
                 if let Ok(packet) = <&[Ray; LANES]>::try_from(packet) {
-                    for (o, h) in o.iter_mut().zip(scene.intersect8(packet)) {
+                    for (o, h) in o.iter_mut().zip(scene.intersect8_bare(packet)) {
                         *o = record(h);
                     }
                 } else {
                     for (o, r) in o.iter_mut().zip(packet) {
-                        *o = record(scene.intersect(r));
+                        *o = record(scene.intersect_bare(r));
                     }
                 }
             }
