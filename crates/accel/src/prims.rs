@@ -85,6 +85,14 @@ pub trait Primitives: Send + Sync {
         let mask = intersect_each(self, |k| first + k as u32, lanes, ray, tmax, &mut out);
         (mask, out)
     }
+    /// Asks the CPU to start loading what a block test of the primitives
+    /// from `first` on reads: a hint for traversals that reach a leaf
+    /// only after other work (a stream's), with no effect on any result.
+    /// The default does nothing.
+    #[inline(always)]
+    fn prefetch_block(&self, first: u32) {
+        let _ = first;
+    }
     /// The per-ray constants of [`Self::intersect_block_pre`], computed
     /// once before a traversal (the default has none).
     #[inline(always)]
@@ -447,6 +455,14 @@ impl Primitives for Triangles {
         BlockRay::new(ray, self.stride())
     }
     #[inline(always)]
+    fn prefetch_block(&self, first: u32) {
+        // The block's lanes in each of the nine rows.
+        let s = self.stride();
+        for r in 0..9 {
+            crate::simd::prefetch_at(&self.data, r * s + first as usize);
+        }
+    }
+    #[inline(always)]
     fn intersect_block_pre(
         &self,
         avx: Avx2,
@@ -643,6 +659,10 @@ impl<P: Primitives + ?Sized> Primitives for &P {
     #[inline(always)]
     fn block_ray(&self, ray: &Ray) -> BlockRay {
         (**self).block_ray(ray)
+    }
+    #[inline(always)]
+    fn prefetch_block(&self, first: u32) {
+        (**self).prefetch_block(first);
     }
     #[inline(always)]
     fn intersect_block_pre(

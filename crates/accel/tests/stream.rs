@@ -15,11 +15,12 @@ use common::{
     bare_bits, bare_of, hit_bits as key, load, point, soup, tri_mesh, uniform, unit_grid,
 };
 
-/// The binary BVHs take streams; the others trace one by one.
-const KINDS: [AccelKind; 6] = [
+/// The BVHs take streams; the others trace one by one.
+const KINDS: [AccelKind; 7] = [
     AccelKind::BvhBinned,
     AccelKind::BvhMedian,
     AccelKind::BvhSweep,
+    AccelKind::Bvh4,
     AccelKind::Bvh8,
     AccelKind::Grid,
     AccelKind::Brute,

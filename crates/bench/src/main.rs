@@ -68,7 +68,7 @@ struct Args {
     packets: bool,
     /// Traces each task's 1,024 rays as one stream where the engine has a
     /// stream call (raymesh `Scene::intersect_stream`/`any_hit_stream`,
-    /// which interleave rays over the binary BVHs; Embree
+    /// which interleave rays over the binary and wide BVHs; Embree
     /// `rtcIntersect1M`/`rtcOccluded1M` with the incoherent hint), closest
     /// and any hits; the Rust peers stay one ray at a time.
     #[arg(long, conflicts_with = "packets")]

@@ -367,70 +367,18 @@ impl<const W: usize> WideBvh<W> {
                 let i = cur.child as usize;
                 let mut t = [0.0f32; W];
                 let n = &nodes[i];
-                let mut mask = test(n, &r, bound, &mut t);
-                // The lowest child left in `mask`, taken out of it.
-                let take = |mask: &mut u32| {
-                    let k = mask.trailing_zeros() as usize;
-                    *mask &= *mask - 1;
-                    Entry {
-                        child: n.child[k],
-                        count: n.count[k],
-                        entry: t[k],
+                let mask = test(n, &r, bound, &mut t);
+                match enter::<ORDERED, W>(nodes, n, mask, &t, &mut stack) {
+                    Some(e) => cur = e,
+                    None => {
+                        if let Some(e) = stack.pop_inline(bound) {
+                            cur = e;
+                            continue;
+                        }
+                        emptied = true;
+                        break;
                     }
-                };
-                if mask == 0 {
-                    if let Some(e) = stack.pop_inline(bound) {
-                        cur = e;
-                        continue;
-                    }
-                    emptied = true;
-                    break;
                 }
-                let first = take(&mut mask);
-                if mask == 0 {
-                    // One child entered: no sorting.
-                    cur = first;
-                    continue;
-                }
-                // The first two in the sort's order below: farther
-                // first, the later slot nearer on a tie (or unordered).
-                let second = take(&mut mask);
-                let (far, near) = if ORDERED && first.entry < second.entry {
-                    (second, first)
-                } else {
-                    (first, second)
-                };
-                if mask == 0 {
-                    // Two children entered, the commonest case after
-                    // one: that comparison instead of the sort.
-                    if far.count == 0 {
-                        simd::prefetch(&nodes[far.child as usize]);
-                    }
-                    stack.push(far);
-                    cur = near;
-                    continue;
-                }
-                // Sort the entered children by entry, farthest first.
-                let mut hits = [Entry::NONE; W];
-                (hits[0], hits[1]) = (far, near);
-                let mut h = 2;
-                while mask != 0 {
-                    let item = take(&mut mask);
-                    let mut j = h;
-                    while ORDERED && j > 0 && hits[j - 1].entry < item.entry {
-                        hits[j] = hits[j - 1];
-                        j -= 1;
-                    }
-                    hits[j] = item;
-                    h += 1;
-                }
-                for item in &hits[..h - 1] {
-                    if item.count == 0 {
-                        simd::prefetch(&nodes[item.child as usize]);
-                    }
-                    stack.push(*item);
-                }
-                cur = hits[h - 1];
             }
             if !emptied {
                 if cur.count == 0 {
@@ -454,6 +402,230 @@ impl<const W: usize> WideBvh<W> {
             cur = e;
         }
     }
+}
+
+/// Rays a wide stream traversal ([`WideBvh::traverse_stream`]) keeps in
+/// flight.
+pub(crate) const WIDE_STREAM_LANES: usize = 4;
+
+/// One ray of a wide stream traversal in flight: its node test, its
+/// interval, the item it visits next, its stack, and its index in the
+/// stream.
+struct WideLane {
+    ray: BoxRay,
+    tmin: f32,
+    tmax: f32,
+    cur: Entry,
+    index: usize,
+    stack: WalkStack,
+}
+
+impl WideLane {
+    /// The next item on the lane's stack within its bound, made current;
+    /// false when none is left.
+    #[inline(always)]
+    fn pop(&mut self) -> bool {
+        match self.stack.pop(cull_bound(self.tmax)) {
+            Some(e) => {
+                self.cur = e;
+                true
+            }
+            None => false,
+        }
+    }
+}
+
+impl<const W: usize> WideBvh<W> {
+    /// Traverses every ray of `rays` as [`Self::traverse_blocks`] (or, not
+    /// `ORDERED`, [`Self::traverse_blocks_unordered`]) does each: the same
+    /// nodes tested with the same arithmetic, the same leaves offered in
+    /// the same order. `leaf(ray, first, count, tmax)` tests a leaf for
+    /// `rays[ray]` within `tmax` and returns the ray's new bound; below
+    /// the ray's `tmin` ends it. Invalid rays are skipped.
+    ///
+    /// [`WIDE_STREAM_LANES`] rays are in flight at once, a step taking one
+    /// of them a node or a leaf further, round robin, and a ray that ends
+    /// makes room for the next. Each step prefetches the node its ray
+    /// visits next, which the ray reaches only after the other rays'
+    /// steps: one ray's walk is a chain of dependent loads, and
+    /// incoherent rays spend most of their time waiting on it; interleaved,
+    /// the fetch of each ray's next node overlaps the others' work (the
+    /// same idea as the binary BVH's stream, [`super::Bvh::traverse_stream`]).
+    pub(crate) fn traverse_stream<const ORDERED: bool>(
+        &self,
+        rays: &[Ray],
+        leaf: &mut impl FnMut(usize, u32, u32, f32) -> f32,
+        prefetch_leaf: impl Fn(u32),
+    ) {
+        if self.nodes.is_empty() {
+            return;
+        }
+        #[cfg(target_arch = "x86_64")]
+        if W == 8 && simd::has_avx2() {
+            return simd::with_avx2(|| {
+                self.stream_with::<ORDERED>(rays, leaf, &prefetch_leaf, |n, r, bound, t| {
+                    simd::slab8(n, r, bound, t)
+                });
+            });
+        }
+        self.stream_with::<ORDERED>(rays, leaf, &prefetch_leaf, |n, r, bound, t| {
+            slab_scalar(n, r, bound, t)
+        });
+    }
+
+    /// The loop of [`Self::traverse_stream`], generic over the node test.
+    #[inline(always)]
+    fn stream_with<const ORDERED: bool>(
+        &self,
+        rays: &[Ray],
+        leaf: &mut impl FnMut(usize, u32, u32, f32) -> f32,
+        prefetch_leaf: &impl Fn(u32),
+        test: impl Fn(&WideNode<W>, &BoxRay, f32, &mut [f32; W]) -> u32,
+    ) {
+        const { assert!(W <= INLINE) };
+        const K: usize = WIDE_STREAM_LANES;
+        let nodes: &[WideNode<W>] = &self.nodes;
+        let mut next = 0;
+        // Starts the next valid ray on `lane`; false when none is left.
+        let mut start = |lane: &mut WideLane| {
+            while let Some(ray) = rays.get(next) {
+                next += 1;
+                if ray.is_valid() {
+                    lane.ray = BoxRay::new(ray);
+                    (lane.tmin, lane.tmax, lane.index) = (ray.tmin(), ray.tmax(), next - 1);
+                    lane.cur = Entry {
+                        child: 0,
+                        count: 0,
+                        entry: ray.tmin(),
+                    };
+                    lane.stack.clear();
+                    return true;
+                }
+            }
+            false
+        };
+        let mut lanes: [WideLane; K] = std::array::from_fn(|_| WideLane {
+            ray: BoxRay::default(),
+            tmin: 0.0,
+            tmax: 0.0,
+            cur: Entry::NONE,
+            index: 0,
+            stack: WalkStack::new(),
+        });
+        // Lanes `..n` are in flight; a lane whose ray ends with none left
+        // to start trades places with the last in flight.
+        let mut n = 0;
+        while n < K && start(&mut lanes[n]) {
+            n += 1;
+        }
+        while n > 0 {
+            let mut k = 0;
+            while k < n {
+                let l = &mut lanes[k];
+                let live = if l.cur.count == 0 {
+                    if !l.stack.has_room(W - 1) {
+                        l.stack.spill();
+                    }
+                    let node = &nodes[l.cur.child as usize];
+                    let mut t = [0.0f32; W];
+                    let mask = test(node, &l.ray, cull_bound(l.tmax), &mut t);
+                    match enter::<ORDERED, W>(nodes, node, mask, &t, &mut l.stack) {
+                        Some(e) => {
+                            l.cur = e;
+                            true
+                        }
+                        None => l.pop(),
+                    }
+                } else {
+                    l.tmax = leaf(l.index, l.cur.child, l.cur.count, l.tmax);
+                    l.tmax >= l.tmin && l.pop()
+                };
+                if live {
+                    if l.cur.count == 0 {
+                        simd::prefetch(&nodes[l.cur.child as usize]);
+                    } else {
+                        prefetch_leaf(l.cur.child);
+                    }
+                    k += 1;
+                } else if start(l) {
+                    k += 1;
+                } else {
+                    n -= 1;
+                    lanes.swap(k, n);
+                }
+            }
+        }
+    }
+}
+
+/// A node's entered children (`mask`, entry distances `t`): all but the
+/// nearest pushed onto `stack`, farthest first (in slot order, unless
+/// `ORDERED`), nodes among them prefetched; returns the nearest, or `None`
+/// when the ray enters none. The caller has made room for `W - 1` pushes.
+#[inline(always)]
+fn enter<const ORDERED: bool, const W: usize>(
+    nodes: &[WideNode<W>],
+    n: &WideNode<W>,
+    mut mask: u32,
+    t: &[f32; W],
+    stack: &mut WalkStack,
+) -> Option<Entry> {
+    // The lowest child left in `mask`, taken out of it.
+    let take = |mask: &mut u32| {
+        let k = mask.trailing_zeros() as usize;
+        *mask &= *mask - 1;
+        Entry {
+            child: n.child[k],
+            count: n.count[k],
+            entry: t[k],
+        }
+    };
+    if mask == 0 {
+        return None;
+    }
+    let first = take(&mut mask);
+    if mask == 0 {
+        // One child entered: no sorting.
+        return Some(first);
+    }
+    // The first two in the sort's order below: farther first, the later
+    // slot nearer on a tie (or unordered).
+    let second = take(&mut mask);
+    let (far, near) = if ORDERED && first.entry < second.entry {
+        (second, first)
+    } else {
+        (first, second)
+    };
+    if mask == 0 {
+        // Two children entered, the commonest case after one: that
+        // comparison instead of the sort.
+        if far.count == 0 {
+            simd::prefetch(&nodes[far.child as usize]);
+        }
+        stack.push(far);
+        return Some(near);
+    }
+    // Sort the entered children by entry, farthest first.
+    let mut hits = [Entry::NONE; W];
+    (hits[0], hits[1]) = (far, near);
+    let mut h = 2;
+    while mask != 0 {
+        let item = take(&mut mask);
+        let mut j = h;
+        while ORDERED && j > 0 && hits[j - 1].entry < item.entry {
+            hits[j] = hits[j - 1];
+            j -= 1;
+        }
+        hits[j] = item;
+        h += 1;
+    }
+    for item in &hits[..h - 1] {
+        if item.count == 0 {
+            simd::prefetch(&nodes[item.child as usize]);
+        }
+        stack.push(*item);
+    }
+    Some(hits[h - 1])
 }
 
 impl<const W: usize> WideBvh<W> {
@@ -861,7 +1033,7 @@ fn range_within(bin: &Bvh, k: u32, levels: usize) -> Option<(u32, u32)> {
 /// What a node test needs of a ray: origin, reciprocal direction, which
 /// axes run backwards (so the near plane is the box's max), and `tmin`;
 /// computed once per ray, before the traversal.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, Default)]
 pub struct BoxRay {
     pub(crate) origin: [f32; 3],
     pub(crate) inv_dir: [f32; 3],
@@ -972,6 +1144,13 @@ impl WalkStack {
             len: 0,
             spill: Vec::new(),
         }
+    }
+
+    /// Empties the stack.
+    #[inline(always)]
+    fn clear(&mut self) {
+        self.len = 0;
+        self.spill.clear();
     }
 
     /// Whether `n` more items fit inline.
@@ -1171,6 +1350,65 @@ mod tests {
                     .collect();
                 assert_eq!(seen, expect);
             }
+        }
+    }
+
+    /// A stream walks each of its rays as the one-ray walk does: the same
+    /// leaves in the same order, ordered or not, across the stack's
+    /// spills (the deep chain), with more rays than lanes in flight, an
+    /// invalid ray skipped, and a ray ended early by its leaf.
+    #[test]
+    fn stream_walks_each_ray_as_alone() {
+        let bvh = leafy_chain(40);
+        let ray = |y: f32, tmax: f32| Ray::new(Vec3::new(-2.0, y, 0.2), Vec3::X, 0.0, tmax);
+        let rays = [
+            ray(0.1, f32::INFINITY),
+            ray(-0.3, f32::INFINITY),
+            Ray::new(Vec3::ZERO, Vec3::ZERO, 0.0, 1.0),
+            ray(0.5, 150.0),
+            ray(0.9, f32::INFINITY),
+            ray(5.0, f32::INFINITY),
+            ray(-0.7, f32::INFINITY),
+        ];
+        // The fourth ray ends at a leaf of level 10 (as an any-hit query
+        // would), the fifth finds `t = 250` in every leaf below level 30,
+        // and the others find nothing.
+        let answer = |i: usize, first: u32| {
+            if i == 3 && first == 8 * 10 {
+                f32::NEG_INFINITY
+            } else if i == 4 && first < 8 * 30 {
+                250.0
+            } else {
+                f32::INFINITY
+            }
+        };
+        for ordered in [true, false] {
+            let mut got = vec![Vec::new(); rays.len()];
+            let mut leaf = |i: usize, first: u32, count: u32, _tmax: f32| {
+                assert_eq!(count, 1);
+                got[i].push(first);
+                answer(i, first)
+            };
+            if ordered {
+                bvh.traverse_stream::<true>(&rays, &mut leaf, |_| {});
+            } else {
+                bvh.traverse_stream::<false>(&rays, &mut leaf, |_| {});
+            }
+            for (i, r) in rays.iter().enumerate() {
+                let mut want = Vec::new();
+                let mut block = |first: u32, _count: u32| {
+                    want.push(first);
+                    answer(i, first)
+                };
+                if ordered {
+                    bvh.traverse_blocks(r, &mut NoStats, &mut block);
+                } else {
+                    bvh.traverse_blocks_unordered(r, &mut NoStats, &mut block);
+                }
+                assert_eq!(got[i], want, "ray {i}, ordered: {ordered}");
+            }
+            assert!(got[2].is_empty() && got[5].is_empty());
+            assert!(got[0].len() == 280 && got[3].len() < 280 && got[4].len() < 280);
         }
     }
 

@@ -49,9 +49,9 @@ pub struct Args {
     /// Trace each task's rays as a stream (`Scene::intersect_stream`,
     /// `Scene::any_hit_stream`): a few rays walk the tree at once,
     /// interleaved, which hides memory latency on incoherent rays (random
-    /// directions); slower on coherent ones. Binary BVHs only (bvh-median,
-    /// bvh-binned, bvh-sweep); other structures trace one by one. Same
-    /// hits, bit for bit.
+    /// directions), most on meshes far larger than the caches; slower on
+    /// coherent ones. BVHs only (bvh-median, bvh-binned, bvh-sweep, bvh4,
+    /// bvh8); other structures trace one by one. Same hits, bit for bit.
     #[arg(long, conflicts_with = "packets")]
     pub stream: bool,
     /// Turn the SIMD kernels off and run the portable fallbacks (same hits,
