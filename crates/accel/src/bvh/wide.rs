@@ -405,8 +405,18 @@ impl<const W: usize> WideBvh<W> {
 }
 
 /// Rays a wide stream traversal ([`WideBvh::traverse_stream`]) keeps in
-/// flight.
-pub(crate) const WIDE_STREAM_LANES: usize = 4;
+/// flight over a tree of fewer than [`LARGE_TREE_BYTES`] of nodes, and
+/// over a larger one. More rays hide longer waits on memory, but the
+/// branch predictor then sees more rays' branches interleaved and each
+/// ray's state leaves registers. Pinned, random rays, Mrays/s with two /
+/// four: bunny00 (0.7 MB of nodes) 3.59–3.98 / 3.29–3.52 (one by one
+/// 3.41–3.78), a 600K-triangle sphere (4.7 MB) 1.80–1.95 / 1.89–2.16,
+/// a 2M-triangle one (16 MB) 1.44–1.51 / 1.50–1.73.
+const STREAM_LANES: [usize; 2] = [2, 4];
+
+/// Bytes of nodes from which a wide stream keeps more rays in flight:
+/// past a few megabytes, most node fetches miss the core's own caches.
+const LARGE_TREE_BYTES: usize = 4 << 20;
 
 /// One ray of a wide stream traversal in flight: its node test, its
 /// interval, the item it visits next, its stack, and its index in the
@@ -443,7 +453,7 @@ impl<const W: usize> WideBvh<W> {
     /// `rays[ray]` within `tmax` and returns the ray's new bound; below
     /// the ray's `tmin` ends it. Invalid rays are skipped.
     ///
-    /// [`WIDE_STREAM_LANES`] rays are in flight at once, a step taking one
+    /// A few rays ([`STREAM_LANES`]) are in flight at once, a step taking one
     /// of them a node or a leaf further, round robin, and a ray that ends
     /// makes room for the next. Each step prefetches the node its ray
     /// visits next, which the ray reaches only after the other rays'
@@ -460,22 +470,41 @@ impl<const W: usize> WideBvh<W> {
         if self.nodes.is_empty() {
             return;
         }
+        let large = std::mem::size_of_val(self.nodes.as_slice()) >= LARGE_TREE_BYTES;
         #[cfg(target_arch = "x86_64")]
         if W == 8 && simd::has_avx2() {
+            let test =
+                |n: &WideNode<W>, r: &BoxRay, bound, t: &mut [f32; W]| simd::slab8(n, r, bound, t);
             return simd::with_avx2(|| {
-                self.stream_with::<ORDERED>(rays, leaf, &prefetch_leaf, |n, r, bound, t| {
-                    simd::slab8(n, r, bound, t)
-                });
+                if large {
+                    self.stream_with::<ORDERED, { STREAM_LANES[1] }>(
+                        rays,
+                        leaf,
+                        &prefetch_leaf,
+                        test,
+                    );
+                } else {
+                    self.stream_with::<ORDERED, { STREAM_LANES[0] }>(
+                        rays,
+                        leaf,
+                        &prefetch_leaf,
+                        test,
+                    );
+                }
             });
         }
-        self.stream_with::<ORDERED>(rays, leaf, &prefetch_leaf, |n, r, bound, t| {
-            slab_scalar(n, r, bound, t)
-        });
+        let test =
+            |n: &WideNode<W>, r: &BoxRay, bound, t: &mut [f32; W]| slab_scalar(n, r, bound, t);
+        if large {
+            self.stream_with::<ORDERED, { STREAM_LANES[1] }>(rays, leaf, &prefetch_leaf, test);
+        } else {
+            self.stream_with::<ORDERED, { STREAM_LANES[0] }>(rays, leaf, &prefetch_leaf, test);
+        }
     }
 
     /// The loop of [`Self::traverse_stream`], generic over the node test.
     #[inline(always)]
-    fn stream_with<const ORDERED: bool>(
+    fn stream_with<const ORDERED: bool, const K: usize>(
         &self,
         rays: &[Ray],
         leaf: &mut impl FnMut(usize, u32, u32, f32) -> f32,
@@ -483,7 +512,6 @@ impl<const W: usize> WideBvh<W> {
         test: impl Fn(&WideNode<W>, &BoxRay, f32, &mut [f32; W]) -> u32,
     ) {
         const { assert!(W <= INLINE) };
-        const K: usize = WIDE_STREAM_LANES;
         let nodes: &[WideNode<W>] = &self.nodes;
         let mut next = 0;
         // Starts the next valid ray on `lane`; false when none is left.
@@ -1393,6 +1421,34 @@ mod tests {
                 bvh.traverse_stream::<true>(&rays, &mut leaf, |_| {});
             } else {
                 bvh.traverse_stream::<false>(&rays, &mut leaf, |_| {});
+            }
+            // The other lane count (the tree is too small to take it), and
+            // one lane, in plain Rust.
+            for k in [STREAM_LANES[1], 1] {
+                let mut again = vec![Vec::new(); rays.len()];
+                let mut leaf = |i: usize, first: u32, _count: u32, _tmax: f32| {
+                    again[i].push(first);
+                    answer(i, first)
+                };
+                let test =
+                    |n: &Node8, r: &BoxRay, bound, t: &mut [f32; 8]| slab_scalar(n, r, bound, t);
+                match (ordered, k) {
+                    (true, 1) => bvh.stream_with::<true, 1>(&rays, &mut leaf, &|_| {}, test),
+                    (false, 1) => bvh.stream_with::<false, 1>(&rays, &mut leaf, &|_| {}, test),
+                    (true, _) => bvh.stream_with::<true, { STREAM_LANES[1] }>(
+                        &rays,
+                        &mut leaf,
+                        &|_| {},
+                        test,
+                    ),
+                    (false, _) => bvh.stream_with::<false, { STREAM_LANES[1] }>(
+                        &rays,
+                        &mut leaf,
+                        &|_| {},
+                        test,
+                    ),
+                }
+                assert_eq!(again, got, "{k} lanes, ordered: {ordered}");
             }
             for (i, r) in rays.iter().enumerate() {
                 let mut want = Vec::new();
