@@ -470,35 +470,33 @@ impl<const W: usize> WideBvh<W> {
         if self.nodes.is_empty() {
             return;
         }
-        let large = std::mem::size_of_val(self.nodes.as_slice()) >= LARGE_TREE_BYTES;
         #[cfg(target_arch = "x86_64")]
         if W == 8 && simd::has_avx2() {
-            let test =
-                |n: &WideNode<W>, r: &BoxRay, bound, t: &mut [f32; W]| simd::slab8(n, r, bound, t);
             return simd::with_avx2(|| {
-                if large {
-                    self.stream_with::<ORDERED, { STREAM_LANES[1] }>(
-                        rays,
-                        leaf,
-                        &prefetch_leaf,
-                        test,
-                    );
-                } else {
-                    self.stream_with::<ORDERED, { STREAM_LANES[0] }>(
-                        rays,
-                        leaf,
-                        &prefetch_leaf,
-                        test,
-                    );
-                }
+                self.stream_sized::<ORDERED>(rays, leaf, &prefetch_leaf, |n, r, bound, t| {
+                    simd::slab8(n, r, bound, t)
+                });
             });
         }
-        let test =
-            |n: &WideNode<W>, r: &BoxRay, bound, t: &mut [f32; W]| slab_scalar(n, r, bound, t);
-        if large {
-            self.stream_with::<ORDERED, { STREAM_LANES[1] }>(rays, leaf, &prefetch_leaf, test);
+        self.stream_sized::<ORDERED>(rays, leaf, &prefetch_leaf, |n, r, bound, t| {
+            slab_scalar(n, r, bound, t)
+        });
+    }
+
+    /// [`Self::stream_with`] with as many rays in flight as the tree's
+    /// size calls for ([`STREAM_LANES`]).
+    #[inline(always)]
+    fn stream_sized<const ORDERED: bool>(
+        &self,
+        rays: &[Ray],
+        leaf: &mut impl FnMut(usize, u32, u32, f32) -> f32,
+        prefetch_leaf: &impl Fn(u32),
+        test: impl Fn(&WideNode<W>, &BoxRay, f32, &mut [f32; W]) -> u32,
+    ) {
+        if std::mem::size_of_val(self.nodes.as_slice()) >= LARGE_TREE_BYTES {
+            self.stream_with::<ORDERED, { STREAM_LANES[1] }>(rays, leaf, prefetch_leaf, test);
         } else {
-            self.stream_with::<ORDERED, { STREAM_LANES[0] }>(rays, leaf, &prefetch_leaf, test);
+            self.stream_with::<ORDERED, { STREAM_LANES[0] }>(rays, leaf, prefetch_leaf, test);
         }
     }
 
