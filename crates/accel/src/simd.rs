@@ -27,6 +27,14 @@ pub fn set_simd_enabled(on: bool) {
     SIMD_ENABLED.store(on, Ordering::Relaxed);
 }
 
+/// Whether the SIMD kernels are enabled (a loop reads it once, before it
+/// starts: an atomic load is not hoisted out of a loop).
+#[inline(always)]
+#[must_use]
+pub(crate) fn simd_enabled() -> bool {
+    SIMD_ENABLED.load(Ordering::Relaxed)
+}
+
 /// Whether the SIMD kernels are enabled and this CPU has AVX2.
 #[inline(always)]
 #[must_use]
@@ -101,42 +109,53 @@ pub(crate) fn prefetch_at<T>(v: &[T], i: usize) {
 }
 
 /// Each of the first three lanes of `f` clamped to `[0, last]` (a NaN to
-/// 0) and truncated to an integer: a centroid's bin on each axis in the
+/// 0) and truncated to an integer, packed into the three low bytes of a
+/// `u32` (`last` is below 256): a centroid's bin on each axis in the
 /// binned BVH builders, which do it for every primitive of every node.
-/// On x86-64 one SSE2 conversion does the three lanes, where Rust's `as`
-/// conversion checks each lane for NaN and overflow (a third of the
-/// binning loop's instructions); elsewhere, and under
-/// [`set_simd_enabled`]`(false)`, the same in plain Rust.
+/// On x86-64 one SSE2 conversion does the three lanes and two packs put
+/// them in one register, where Rust's `as` conversion checks each lane
+/// for NaN and overflow (a third of the binning loop's instructions);
+/// elsewhere, and when `simd` is false (the caller's reading of
+/// [`simd_enabled`]), the same in plain Rust.
 #[inline(always)]
-pub(crate) fn truncate3(f: raymesh_geometry::Vec3A, last: f32) -> [usize; 3] {
+pub(crate) fn truncate3(f: raymesh_geometry::Vec3A, last: f32, simd: bool) -> u32 {
+    debug_assert!(last < 256.0);
     // `max` returns its second operand, 0, when `f` is NaN (SSE's
     // `maxps`, or glam's portable `f32::max`, which ignores NaN).
     let f = f
         .max(raymesh_geometry::Vec3A::ZERO)
         .min(raymesh_geometry::Vec3A::splat(last));
     #[cfg(target_arch = "x86_64")]
-    if SIMD_ENABLED.load(Ordering::Relaxed) {
+    if simd {
         return truncate3_sse2(f);
     }
+    let _ = simd;
     truncate3_scalar(f)
 }
 
-/// [`truncate3`]'s conversion in one SSE2 instruction, of lanes already
-/// clamped to small non-negative numbers.
+/// [`truncate3`]'s conversion and packing in SSE2, of lanes already
+/// clamped to `[0, 255]` or NaN-free smaller numbers.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
-fn truncate3_sse2(f: raymesh_geometry::Vec3A) -> [usize; 3] {
-    use std::arch::x86_64::{__m128, _mm_cvttps_epi32};
-    // SAFETY: SSE2 is part of x86-64, so every x86-64 CPU has it.
-    let k: [i32; 4] = bytemuck::cast(unsafe { _mm_cvttps_epi32(__m128::from(f)) });
-    [k[0] as usize, k[1] as usize, k[2] as usize]
+fn truncate3_sse2(f: raymesh_geometry::Vec3A) -> u32 {
+    use std::arch::x86_64::{
+        __m128, _mm_cvtsi128_si32, _mm_cvttps_epi32, _mm_packs_epi32, _mm_packus_epi16,
+    };
+    // SAFETY: SSE2 is part of x86-64, so every x86-64 CPU has it. Lanes
+    // of 0..=255 pass both saturating packs unchanged.
+    let bytes = unsafe {
+        let k = _mm_cvttps_epi32(__m128::from(f));
+        let w = _mm_packs_epi32(k, k);
+        _mm_cvtsi128_si32(_mm_packus_epi16(w, w))
+    };
+    bytes as u32 & 0x00ff_ffff
 }
 
 /// [`truncate3`]'s conversion lane by lane, of lanes already clamped.
 #[inline(always)]
-fn truncate3_scalar(f: raymesh_geometry::Vec3A) -> [usize; 3] {
-    let k = |x: f32| x as i32 as usize;
-    [k(f.x), k(f.y), k(f.z)]
+fn truncate3_scalar(f: raymesh_geometry::Vec3A) -> u32 {
+    let k = |x: f32| x as u32;
+    k(f.x) | k(f.y) << 8 | k(f.z) << 16
 }
 
 /// The slab test of an 8-wide node's boxes in AVX: the same result as
@@ -751,15 +770,17 @@ mod tests {
         ) {
             let last = (nb - 1) as f32;
             let f = raymesh_geometry::Vec3A::new(x, y, z);
-            let want = [x, y, z].map(|v| {
+            let [a, b, c] = [x, y, z].map(|v| {
                 let v = if v.is_nan() { 0.0 } else { v.clamp(0.0, last) };
-                v.floor() as usize
+                v.floor() as u32
             });
+            let want = a | b << 8 | c << 16;
             let clamped = f.max(raymesh_geometry::Vec3A::ZERO)
                 .min(raymesh_geometry::Vec3A::splat(last));
             prop_assert_eq!(truncate3_sse2(clamped), want);
             prop_assert_eq!(truncate3_scalar(clamped), want);
-            prop_assert_eq!(truncate3(f, last), want);
+            prop_assert_eq!(truncate3(f, last, true), want);
+            prop_assert_eq!(truncate3(f, last, false), want);
         }
     }
 

@@ -16,7 +16,7 @@ mod triangle;
 
 pub use aabb::{cull_bound, Aabb};
 pub use float::{gamma, max_nan_second, min_nan_second, next_down, next_up, ROBUST_EXIT};
-pub use glam::{Mat3, Mat4, Quat, Vec2, Vec3, Vec3A};
+pub use glam::{BVec4A, Mat3, Mat4, Quat, Vec2, Vec3, Vec3A, Vec4};
 pub use octahedral::{decode_unit, encode_unit, ZERO_UNIT};
 pub use ray::Ray;
 pub use sphere::{intersect_sphere, Sphere, SphereHit};

@@ -8,7 +8,7 @@ pub use spatial::Clip;
 
 use super::{Bvh, Node, NodePair};
 use crate::BuildConfig;
-use raymesh_geometry::{Aabb, Vec3, Vec3A};
+use raymesh_geometry::{Aabb, Vec3, Vec3A, Vec4};
 use rayon::prelude::*;
 
 /// Depth past which every builder splits by count (halving the node), so
@@ -44,41 +44,72 @@ const PAR_CHUNK: usize = 16 * 1024;
 /// A primitive as the builders move it: its box and its index, 32 bytes.
 /// Builders partition these in place, so that every pass over a node
 /// reads memory in order (as Embree's builders do with their `PrimRef`s)
-/// rather than chasing indices into the box array. Aligned to 16 bytes
-/// (4 bytes of padding), so that a copy is two aligned 16-byte moves: at
-/// 28 bytes it was two overlapping ones, and the partition's next load of
-/// a reference it had just moved stalled on store forwarding (two fifths
-/// of the partition's time).
+/// rather than chasing indices into the box array.
+///
+/// The box's corners are two SSE registers' worth (`Vec4`, 16-byte
+/// aligned), the index kept bit for bit in the lower corner's fourth lane,
+/// so that each corner loads as one `Vec3A` in one aligned move (three
+/// moves and shuffles a corner as `Vec3`s) and a copy is two aligned
+/// moves (at 28 bytes it was two overlapping ones, and the partition's
+/// next load of a reference it had just moved stalled on store
+/// forwarding). The fourth lanes never reach a result: every use of the
+/// corners as `Vec3A` reads the first three lanes only.
 #[derive(Clone, Copy, Debug)]
-#[repr(C, align(16))]
 struct PrimRef {
-    min: Vec3,
-    id: u32,
-    max: Vec3,
+    lo: Vec4,
+    hi: Vec4,
 }
 
 const _: () = assert!(std::mem::size_of::<PrimRef>() == 32);
 
 impl PrimRef {
+    /// Primitive `id` with box `b`.
+    #[inline(always)]
+    fn new(b: Aabb, id: u32) -> Self {
+        Self {
+            lo: b.min.extend(f32::from_bits(id)),
+            hi: b.max.extend(0.0),
+        }
+    }
+
     /// The references of primitives `0..n`, primitive `i` with box
     /// `bounds(i)`, made in parallel.
     fn all(n: usize, bounds: &(dyn Fn(u32) -> Aabb + Sync)) -> Vec<Self> {
         (0..n as u32)
             .into_par_iter()
-            .map(|i| {
-                let b = bounds(i);
-                Self {
-                    min: b.min,
-                    id: i,
-                    max: b.max,
-                }
-            })
+            .map(|i| Self::new(bounds(i), i))
             .collect()
+    }
+
+    /// The primitive's index.
+    #[inline(always)]
+    fn id(&self) -> u32 {
+        self.lo.w.to_bits()
+    }
+
+    /// The box's corners in SSE lanes (the fourth lanes unspecified).
+    #[inline(always)]
+    fn corners(&self) -> (Vec3A, Vec3A) {
+        let xyz = raymesh_geometry::BVec4A::new(true, true, true, false);
+        (
+            Vec3A::from_vec4(Vec4::select(xyz, self.lo, Vec4::ZERO)),
+            Vec3A::from_vec4(self.hi),
+        )
+    }
+
+    #[inline(always)]
+    fn min(&self) -> Vec3 {
+        self.lo.truncate()
+    }
+
+    #[inline(always)]
+    fn max(&self) -> Vec3 {
+        self.hi.truncate()
     }
 
     #[inline(always)]
     fn bounds(&self) -> Aabb {
-        Aabb::new(self.min, self.max)
+        Aabb::new(self.min(), self.max())
     }
 
     #[inline(always)]
@@ -209,7 +240,8 @@ impl Bin {
     }
 }
 
-/// Scratch bins of the binned builder: [`MAX_BINS`] per axis.
+/// Scratch bins of the binned builder: [`MAX_BINS`] per axis, the three
+/// axes' bins, then a second set of three (see [`Ctx::bin`]).
 type Bins = Vec<Bin>;
 
 /// How [`Ctx::bin_all`] binned a node's centroids: bins per axis, and
@@ -235,7 +267,7 @@ struct ObjectSplit {
 }
 
 fn new_bins() -> Bins {
-    vec![Bin::EMPTY; 3 * MAX_BINS]
+    vec![Bin::EMPTY; 6 * MAX_BINS]
 }
 
 impl BvhBuilder {
@@ -282,7 +314,7 @@ impl BvhBuilder {
         // The references (32 bytes a primitive) go before the tree is
         // flattened, so that they never coexist with both of its copies.
         let depth = tree.depth() as u32;
-        let prim_ids = refs.par_iter().map(|r| r.id).collect();
+        let prim_ids = refs.par_iter().map(PrimRef::id).collect();
         drop(refs);
         let empty = NodePair([Node::new(Aabb::EMPTY); 2]);
         let mut pairs: Vec<NodePair> = (0..tree.pairs()).into_par_iter().map(|_| empty).collect();
@@ -371,7 +403,7 @@ impl Ctx<'_> {
             let (mut lo, mut hi) = (Vec3A::INFINITY, Vec3A::NEG_INFINITY);
             let (mut clo, mut chi) = (Vec3A::INFINITY, Vec3A::NEG_INFINITY);
             for r in ids {
-                let (a, b) = (Vec3A::from(r.min), Vec3A::from(r.max));
+                let (a, b) = r.corners();
                 let c = (a + b) * 0.5;
                 (lo, hi) = (a.min(lo), b.max(hi));
                 (clo, chi) = (c.min(clo), c.max(chi));
@@ -464,6 +496,8 @@ impl Ctx<'_> {
             None
         } else if depth >= SAH_DEPTH_LIMIT {
             Some(self.split_by_count(ids, cbounds))
+        } else if self.builder != BvhBuilder::Median && self.leaf_wins(ids.len()) {
+            None
         } else {
             match self.builder {
                 BvhBuilder::Median => {
@@ -526,6 +560,17 @@ impl Ctx<'_> {
     /// makes progress.
     fn split_by_count(&self, ids: &mut [PrimRef], cbounds: Aabb) -> usize {
         self.split_median(ids, cbounds.longest_axis())
+    }
+
+    /// Whether an SAH builder makes a leaf of `n` primitives whatever their
+    /// boxes: a split costs at least the traversal step, so where a leaf
+    /// of `n` costs no more and may hold them, [`Self::decide`] takes the
+    /// leaf. Binning such a node (most nodes near the leaves: a wide BVH's
+    /// binary tree, which weighs primitives one by one against a step of
+    /// 3, has every node of 2 or 3) only to find that out is skipped.
+    #[inline(always)]
+    fn leaf_wins(&self, n: usize) -> bool {
+        n <= self.config.max_leaf && self.blocks(n) <= self.config.traversal_cost
     }
 
     /// Leaf or split, given the best split's SAH cost (relative to the node's area).
@@ -604,7 +649,8 @@ impl Ctx<'_> {
                     b
                 })
                 .reduce(new_bins, |mut a, b| {
-                    for (x, y) in a.iter_mut().zip(&b) {
+                    // The first set: `bin` merged the second into it.
+                    for (x, y) in a.iter_mut().zip(&b).take(3 * MAX_BINS) {
                         *x = x.merge(*y);
                     }
                     a
@@ -679,25 +725,51 @@ impl Ctx<'_> {
 
     /// Counts `ids` into the first `nb` bins of each axis of `bins` (the
     /// others untouched) and grows each bin's box by its primitives' boxes.
+    ///
+    /// Two things keep the loop from stalling on memory. The bins of a
+    /// run of [`BIN_RUN`] primitives are found first, then updated, so
+    /// that no bin's load waits on the arithmetic that finds the bin of a
+    /// store before it. And neighbouring primitives of a mesh mostly fall
+    /// in the same bins, where each update waits for the one before it to
+    /// be stored: nodes of [`PAIRED_BINNING`] primitives or more update
+    /// two sets of bins (the second behind the first in `bins`), even
+    /// primitives the first and odd ones the second, merged at the end.
+    /// Unions and counts are exact, so the bins are what one set gives.
     fn bin(&self, ids: &[PrimRef], min: Vec3, scale: Vec3, nb: usize, bins: &mut Bins) {
-        for axis in 0..3 {
+        let paired = ids.len() >= PAIRED_BINNING;
+        for axis in 0..if paired { 6 } else { 3 } {
             bins[axis * MAX_BINS..axis * MAX_BINS + nb].fill(Bin::EMPTY);
         }
-        // Each axis's bins as a fixed-size array, indexed by a bin number
-        // masked to the array (a no-op: bins are below `nb <= MAX_BINS`),
-        // so the loop carries no bounds checks.
-        let (x, rest) = bins.split_at_mut(MAX_BINS);
-        let (y, z) = rest.split_at_mut(MAX_BINS);
-        let axes: [&mut [Bin; MAX_BINS]; 3] =
-            [x, y, &mut z[..MAX_BINS]].map(|b| b.try_into().expect("MAX_BINS bins per axis"));
-        let [x, y, z] = axes;
-        const MASK: usize = MAX_BINS - 1;
-        for r in ids {
-            let (lo, hi) = (Vec3A::from(r.min), Vec3A::from(r.max));
-            let k = bin3((lo + hi) * 0.5, min, scale, nb);
-            x[k[0] & MASK].add(lo, hi);
-            y[k[1] & MASK].add(lo, hi);
-            z[k[2] & MASK].add(lo, hi);
+        let (first, second) = bins.split_at_mut(3 * MAX_BINS);
+        let mut a = axes(first);
+        let mut b = axes(second);
+        let simd = crate::simd::simd_enabled();
+        let mut k = [0u32; BIN_RUN];
+        for run in ids.chunks(BIN_RUN) {
+            for (k, r) in k.iter_mut().zip(run) {
+                let (lo, hi) = r.corners();
+                *k = bin3((lo + hi) * 0.5, min, scale, nb, simd);
+            }
+            if paired {
+                for (k, r) in k.chunks_exact(2).zip(run.chunks_exact(2)) {
+                    add_to(&mut a, k[0], &r[0]);
+                    add_to(&mut b, k[1], &r[1]);
+                }
+                if run.len() % 2 == 1 {
+                    add_to(&mut a, k[run.len() - 1], &run[run.len() - 1]);
+                }
+            } else {
+                for (&k, r) in k.iter().zip(run) {
+                    add_to(&mut a, k, r);
+                }
+            }
+        }
+        if paired {
+            for (a, b) in a.iter_mut().zip(&b) {
+                for (x, y) in a[..nb].iter_mut().zip(&b[..nb]) {
+                    *x = x.merge(*y);
+                }
+            }
         }
     }
 
@@ -710,7 +782,7 @@ impl Ctx<'_> {
             move |a: &PrimRef, b: &PrimRef| {
                 a.centroid()[axis]
                     .total_cmp(&b.centroid()[axis])
-                    .then(a.id.cmp(&b.id))
+                    .then(a.id().cmp(&b.id()))
             }
         };
         let mut best: Option<(f32, usize, usize)> = None;
@@ -747,6 +819,35 @@ impl Ctx<'_> {
     }
 }
 
+/// Primitives [`Ctx::bin`] finds the bins of before it updates them.
+const BIN_RUN: usize = 32;
+
+/// Nodes of at least this many primitives bin them into two sets of bins
+/// (see [`Ctx::bin`]); for fewer, filling and merging the second set
+/// costs more than it saves.
+const PAIRED_BINNING: usize = 64;
+
+/// The three axes' bins at the front of `bins`, as fixed-size arrays, so
+/// that a bin number masked to the array (a no-op: bins are below `nb <=
+/// MAX_BINS`) indexes them without bounds checks.
+fn axes(bins: &mut [Bin]) -> [&mut [Bin; MAX_BINS]; 3] {
+    let (x, rest) = bins.split_at_mut(MAX_BINS);
+    let (y, z) = rest.split_at_mut(MAX_BINS);
+    [x, y, &mut z[..MAX_BINS]].map(|b| b.try_into().expect("MAX_BINS bins per axis"))
+}
+
+/// Adds primitive `r` to bins `k` (packed as [`bin3`] packs them) of the
+/// three axes `axes`.
+#[inline(always)]
+fn add_to(axes: &mut [&mut [Bin; MAX_BINS]; 3], k: u32, r: &PrimRef) {
+    const MASK: usize = MAX_BINS - 1;
+    let (lo, hi) = r.corners();
+    let k = k as usize;
+    axes[0][k & MASK].add(lo, hi);
+    axes[1][(k >> 8) & MASK].add(lo, hi);
+    axes[2][(k >> 16) & MASK].add(lo, hi);
+}
+
 /// Most bins per axis of the binned builder (a power of two: see `bin`).
 const MAX_BINS: usize = 64;
 const _: () = assert!(MAX_BINS.is_power_of_two());
@@ -758,9 +859,9 @@ const _: () = assert!(MAX_BINS.is_power_of_two());
 /// before), and on x86-64 one SSE2 truncation of the three axes (see
 /// [`crate::simd::truncate3`]).
 #[inline(always)]
-fn bin3(c: Vec3A, min: Vec3, scale: Vec3, nb: usize) -> [usize; 3] {
+fn bin3(c: Vec3A, min: Vec3, scale: Vec3, nb: usize, simd: bool) -> u32 {
     let f = (c - Vec3A::from(min)) * Vec3A::from(scale);
-    crate::simd::truncate3(f, (nb - 1) as f32)
+    crate::simd::truncate3(f, (nb - 1) as f32, simd)
 }
 
 /// [`partition`] for long slices, in parallel and in place: chunks of
@@ -951,6 +1052,74 @@ mod tests {
             let mut ids = bvh.prim_ids().to_vec();
             ids.sort_unstable();
             assert!(ids.iter().copied().eq(0..b.len() as u32), "{builder:?}");
+        }
+    }
+
+    /// [`Ctx::bin`] (bins found a run at a time, two sets of bins from
+    /// [`PAIRED_BINNING`] primitives on) fills the bins that adding each
+    /// primitive in turn to one set fills, bit for bit, for node sizes
+    /// around the run and pairing thresholds, odd and even, and with NaN
+    /// and infinite corners; and it leaves the bins past `nb` alone.
+    #[test]
+    fn binning_matches_one_at_a_time() {
+        let mut boxes = crate::test_util::clustered_boxes(3 * BIN_RUN + 2 * PAIRED_BINNING + 7);
+        for (k, x) in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY].iter().enumerate() {
+            boxes[7 * k + 3].min[k] = *x;
+            boxes[11 * k + 5].max[(k + 1) % 3] = *x;
+        }
+        let refs: Vec<PrimRef> = boxes
+            .iter()
+            .enumerate()
+            .map(|(i, b)| PrimRef::new(*b, i as u32))
+            .collect();
+        let config = BuildConfig::default();
+        let ctx = Ctx::new(&config, BvhBuilder::BinnedSah, PAR_SUBTREE);
+        let bits = |b: &Bin| {
+            let (lo, hi) = (Vec3::from(b.min), Vec3::from(b.max));
+            (lo.to_array().map(f32::to_bits), hi.to_array().map(f32::to_bits), b.count)
+        };
+        let sizes = [1, 2, BIN_RUN - 1, BIN_RUN + 1, PAIRED_BINNING - 1, PAIRED_BINNING];
+        for n in sizes.into_iter().chain([PAIRED_BINNING + 1, 3 * BIN_RUN + 5, refs.len()]) {
+            let ids = &refs[..n];
+            let cb = ids
+                .iter()
+                .fold(Aabb::EMPTY, |a, r| a.union(Aabb::new(r.centroid(), r.centroid())));
+            for nb in [2, 5, 32, MAX_BINS] {
+                let scale = Vec3::select(
+                    cb.extent().cmpgt(Vec3::ZERO),
+                    Vec3::splat(nb as f32) / cb.extent(),
+                    Vec3::ZERO,
+                );
+                let mut want = new_bins();
+                for axis in 0..3 {
+                    for r in ids {
+                        let (lo, hi) = r.corners();
+                        let k = bin3((lo + hi) * 0.5, cb.min, scale, nb, false);
+                        want[axis * MAX_BINS + (k >> (8 * axis) & 0xff) as usize].add(lo, hi);
+                    }
+                }
+                let mut got = new_bins();
+                // Bins past `nb` hold something that must stay as it is.
+                got[..3 * MAX_BINS].fill(Bin {
+                    count: 7,
+                    ..Bin::EMPTY
+                });
+                for axis in 0..3 {
+                    for b in nb..MAX_BINS {
+                        want[axis * MAX_BINS + b].count = 7;
+                    }
+                }
+                ctx.bin(ids, cb.min, scale, nb, &mut got);
+                let (got, want) = (&got[..3 * MAX_BINS], &want[..3 * MAX_BINS]);
+                assert!(
+                    got.iter().map(bits).eq(want.iter().map(bits)),
+                    "{n} primitives, {nb} bins"
+                );
+                assert_eq!(
+                    got.iter().map(|b| b.count).sum::<u32>(),
+                    3 * n as u32 + 3 * 7 * (MAX_BINS - nb) as u32
+                );
+            }
         }
     }
 }

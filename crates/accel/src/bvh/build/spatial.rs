@@ -205,11 +205,7 @@ fn flatten(
 impl PrimRef {
     /// The same primitive with the box `b` (a part of it).
     fn with_box(self, b: Aabb) -> Self {
-        Self {
-            min: b.min,
-            max: b.max,
-            ..self
-        }
+        Self::new(b, self.id())
     }
 }
 
@@ -220,7 +216,7 @@ impl Spatial<'_> {
         let ctx = &self.ctx;
         let (bounds, cb) = ctx.bounds_pair(&refs);
         let n = refs.len();
-        let leaf = |refs: &[PrimRef]| Tree::Leaf(bounds, refs.iter().map(|r| r.id).collect());
+        let leaf = |refs: &[PrimRef]| Tree::Leaf(bounds, refs.iter().map(PrimRef::id).collect());
         if n <= 1 {
             return leaf(&refs);
         }
@@ -341,13 +337,13 @@ impl Spatial<'_> {
                 let width = (hi - lo) / nb as f32;
                 let bin_of = |x: f32| (((x - lo) / width).max(0.0) as usize).min(nb - 1);
                 for r in refs {
-                    let (first, last) = (bin_of(r.min[axis]), bin_of(r.max[axis]));
+                    let (first, last) = (bin_of(r.min()[axis]), bin_of(r.max()[axis]));
                     bins[first].enter += 1;
                     bins[last].exit += 1;
                     let mut rest = r.bounds();
                     for (k, bin) in bins.iter_mut().enumerate().take(last).skip(first) {
                         let plane = lo + (k + 1) as f32 * width;
-                        let (part, right) = (self.clip)(r.id, rest, axis, plane);
+                        let (part, right) = (self.clip)(r.id(), rest, axis, plane);
                         add_box(&mut bin.part, part);
                         rest = right;
                     }
@@ -441,16 +437,16 @@ impl Spatial<'_> {
         let mut right = Vec::with_capacity(s.right as usize);
         let mut added = 0;
         for r in refs {
-            if r.max[axis] <= pos {
+            if r.max()[axis] <= pos {
                 left.push(*r);
                 continue;
             }
-            if r.min[axis] >= pos {
+            if r.min()[axis] >= pos {
                 right.push(*r);
                 continue;
             }
             let whole = r.bounds();
-            let (lp, rp) = (self.clip)(r.id, whole, axis, pos);
+            let (lp, rp) = (self.clip)(r.id(), whole, axis, pos);
             match (lp.is_empty(), rp.is_empty()) {
                 (false, false) => {
                     let split = al * nl + ar * nr;
