@@ -766,17 +766,18 @@ impl Ctx<'_> {
     /// Counts `ids` into the first `nb` bins of each axis of `bins` (the
     /// others untouched) and grows each bin's box by its primitives' boxes.
     ///
-    /// Two things keep the loop from stalling on memory. The bins of a
-    /// run of [`BIN_RUN`] primitives are found first, then updated, so
-    /// that no bin's load waits on the arithmetic that finds the bin of a
-    /// store before it. And neighbouring primitives of a mesh mostly fall
-    /// in the same bins, where each update waits for the one before it to
-    /// be stored: nodes of [`PAIRED_BINNING`] primitives or more update
-    /// two sets of bins (the second behind the first in `bins`), even
-    /// primitives the first and odd ones the second, merged at the end.
-    /// Unions and counts are exact, so the bins are what one set gives.
+    /// Two things keep the loop from stalling on memory. The bins of each
+    /// whole run of [`BIN_RUN`] primitives are found first, then updated,
+    /// so that no bin's load waits on the arithmetic that finds the bin of
+    /// a store before it. And neighbouring primitives of a mesh mostly
+    /// fall in the same bins, where each update waits for the one before
+    /// it to be stored: a run's even primitives update one set of bins and
+    /// its odd ones a second (behind the first in `bins`), merged at the
+    /// end. The primitives past the last whole run go one at a time to
+    /// the first set. Unions and counts are exact, so the bins are what
+    /// one set gives.
     fn bin(&self, ids: &[PrimRef], min: Vec3, scale: Vec3, nb: usize, bins: &mut Bins) {
-        let paired = ids.len() >= PAIRED_BINNING;
+        let paired = ids.len() >= BIN_RUN;
         for axis in 0..if paired { 6 } else { 3 } {
             bins[axis * MAX_BINS..axis * MAX_BINS + nb].fill(Bin::EMPTY);
         }
@@ -784,25 +785,22 @@ impl Ctx<'_> {
         let mut a = axes(first);
         let mut b = axes(second);
         let simd = crate::simd::simd_enabled();
-        let mut k = [0u32; BIN_RUN];
-        for run in ids.chunks(BIN_RUN) {
-            for (k, r) in k.iter_mut().zip(run) {
-                let (lo, hi) = r.corners();
-                *k = bin3((lo + hi) * 0.5, min, scale, nb, simd);
+        let bin_of = |r: &PrimRef| {
+            let (lo, hi) = r.corners();
+            bin3((lo + hi) * 0.5, min, scale, nb, simd)
+        };
+        // Whole runs as arrays, so that the loops carry no checks.
+        let mut runs = ids.chunks_exact(BIN_RUN);
+        for run in &mut runs {
+            let run: &[PrimRef; BIN_RUN] = run.try_into().expect("a whole run");
+            let k: [u32; BIN_RUN] = std::array::from_fn(|i| bin_of(&run[i]));
+            for i in (0..BIN_RUN).step_by(2) {
+                add_to(&mut a, k[i], &run[i]);
+                add_to(&mut b, k[i + 1], &run[i + 1]);
             }
-            if paired {
-                for (k, r) in k.chunks_exact(2).zip(run.chunks_exact(2)) {
-                    add_to(&mut a, k[0], &r[0]);
-                    add_to(&mut b, k[1], &r[1]);
-                }
-                if run.len() % 2 == 1 {
-                    add_to(&mut a, k[run.len() - 1], &run[run.len() - 1]);
-                }
-            } else {
-                for (&k, r) in k.iter().zip(run) {
-                    add_to(&mut a, k, r);
-                }
-            }
+        }
+        for r in runs.remainder() {
+            add_to(&mut a, bin_of(r), r);
         }
         if paired {
             for (a, b) in a.iter_mut().zip(&b) {
@@ -861,11 +859,6 @@ impl Ctx<'_> {
 
 /// Primitives [`Ctx::bin`] finds the bins of before it updates them.
 const BIN_RUN: usize = 32;
-
-/// Nodes of at least this many primitives bin them into two sets of bins
-/// (see [`Ctx::bin`]); for fewer, filling and merging the second set
-/// costs more than it saves.
-const PAIRED_BINNING: usize = 64;
 
 /// The three axes' bins at the front of `bins`, as fixed-size arrays, so
 /// that a bin number masked to the array (a no-op: bins are below `nb <=
@@ -1096,13 +1089,13 @@ mod tests {
     }
 
     /// [`Ctx::bin`] (bins found a run at a time, two sets of bins from
-    /// [`PAIRED_BINNING`] primitives on) fills the bins that adding each
+    /// a whole run on) fills the bins that adding each
     /// primitive in turn to one set fills, bit for bit, for node sizes
     /// around the run and pairing thresholds, odd and even, and with NaN
     /// and infinite corners; and it leaves the bins past `nb` alone.
     #[test]
     fn binning_matches_one_at_a_time() {
-        let mut boxes = crate::test_util::clustered_boxes(3 * BIN_RUN + 2 * PAIRED_BINNING + 7);
+        let mut boxes = crate::test_util::clustered_boxes(7 * BIN_RUN + 7);
         for (k, x) in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY]
             .iter()
             .enumerate()
@@ -1129,13 +1122,14 @@ mod tests {
             1,
             2,
             BIN_RUN - 1,
+            BIN_RUN,
             BIN_RUN + 1,
-            PAIRED_BINNING - 1,
-            PAIRED_BINNING,
+            2 * BIN_RUN - 1,
+            2 * BIN_RUN,
         ];
         for n in sizes
             .into_iter()
-            .chain([PAIRED_BINNING + 1, 3 * BIN_RUN + 5, refs.len()])
+            .chain([2 * BIN_RUN + 1, 3 * BIN_RUN + 5, refs.len()])
         {
             let ids = &refs[..n];
             let cb = ids.iter().fold(Aabb::EMPTY, |a, r| {
@@ -1191,7 +1185,11 @@ mod tests {
             };
             let ctx = Ctx::new(&config, BvhBuilder::BinnedSah, PAR_SUBTREE);
             for n in (0..100).chain([u32::MAX as usize - 1]) {
-                assert_eq!(ctx.blocks(n), n.div_ceil(block) as f32, "{n} in blocks of {block}");
+                assert_eq!(
+                    ctx.blocks(n),
+                    n.div_ceil(block) as f32,
+                    "{n} in blocks of {block}"
+                );
             }
         }
     }
