@@ -134,7 +134,7 @@ pub(crate) fn truncate3(f: raymesh_geometry::Vec3A, last: f32, simd: bool) -> u3
 }
 
 /// [`truncate3`]'s conversion and packing in SSE2, of lanes already
-/// clamped to `[0, 255]` or NaN-free smaller numbers.
+/// clamped to `[0, last]`, `last` below 256.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 fn truncate3_sse2(f: raymesh_geometry::Vec3A) -> u32 {
