@@ -565,7 +565,7 @@ impl Bvh {
         let mut next = 0;
         // Starts the next ray that enters the root's box on `lane`;
         // returns false when none is left.
-        let mut start = |lane: &mut StreamLane| {
+        let start = |lane: &mut StreamLane| {
             while let Some(ray) = rays.get(next) {
                 next += 1;
                 if !ray.is_valid() {
@@ -590,51 +590,66 @@ impl Bvh {
             index: 0,
             stack: [(DONE, f32::NEG_INFINITY); STREAM_STACK],
         }; K];
-        // Lanes `..n` are in flight; a lane whose ray ends with none left
-        // to start trades places with the last in flight.
-        let mut n = 0;
-        while n < K && start(&mut lanes[n]) {
-            n += 1;
-        }
-        while n > 0 {
-            let mut k = 0;
-            while k < n {
-                let l = &mut lanes[k];
-                let node = self.node(l.cur);
-                let bound = cull_bound(l.tmax);
-                if node.is_leaf() || l.entry > bound {
-                    if node.is_leaf() && l.entry <= bound {
-                        l.tmax = leaf(l.index, node.index, node.count, l.tmax);
-                        if l.tmax < l.ray.tmin {
-                            l.sp = 1;
-                        }
+        round_robin(&mut lanes, start, |l| {
+            let node = self.node(l.cur);
+            let bound = cull_bound(l.tmax);
+            if node.is_leaf() || l.entry > bound {
+                if node.is_leaf() && l.entry <= bound {
+                    l.tmax = leaf(l.index, node.index, node.count, l.tmax);
+                    if l.tmax < l.ray.tmin {
+                        l.sp = 1;
                     }
-                    l.sp -= 1;
-                    (l.cur, l.entry) = l.stack[l.sp & M];
-                } else {
-                    let (hits, l0, r0) =
-                        pair_slab(&self.pairs[(node.index >> 1) as usize], &l.ray, bound);
-                    let (hit_l, hit_r) = (hits & 1 != 0, hits & 2 != 0);
-                    // The one-ray walk's order: the left child first unless
-                    // only the right is entered or the right strictly first.
-                    let right = hit_r & (!hit_l | !(l0 <= r0));
-                    let near = node.index + right as u32;
-                    // Push the farther child (kept only if both are entered);
-                    // pop if neither is.
-                    l.stack[l.sp & M] = (near ^ 1, select_f32(right, l0, r0));
-                    let any = hit_l | hit_r;
-                    let sp = l.sp + (hit_l & hit_r) as usize - !any as usize;
-                    let top = l.stack[sp & M];
-                    l.sp = sp;
-                    l.cur = select_u32(any, near, top.0);
-                    l.entry = select_f32(any, select_f32(right, r0, l0), top.1);
                 }
-                if l.cur == DONE && !start(l) {
-                    n -= 1;
-                    lanes.swap(k, n);
-                    continue;
-                }
+                l.sp -= 1;
+                (l.cur, l.entry) = l.stack[l.sp & M];
+            } else {
+                let (hits, l0, r0) =
+                    pair_slab(&self.pairs[(node.index >> 1) as usize], &l.ray, bound);
+                let (hit_l, hit_r) = (hits & 1 != 0, hits & 2 != 0);
+                // The one-ray walk's order: the left child first unless
+                // only the right is entered or the right strictly first.
+                let right = hit_r & (!hit_l | !(l0 <= r0));
+                let near = node.index + right as u32;
+                // Push the farther child (kept only if both are entered);
+                // pop if neither is.
+                l.stack[l.sp & M] = (near ^ 1, select_f32(right, l0, r0));
+                let any = hit_l | hit_r;
+                let sp = l.sp + (hit_l & hit_r) as usize - !any as usize;
+                let top = l.stack[sp & M];
+                l.sp = sp;
+                l.cur = select_u32(any, near, top.0);
+                l.entry = select_f32(any, select_f32(right, r0, l0), top.1);
+            }
+            l.cur != DONE
+        });
+    }
+}
+
+/// The scheduling of a stream traversal: `start` puts the next ray on a
+/// lane (false when none is left), and `step` takes a lane's ray one step
+/// further (false when it has ended). Steps go round robin over the lanes
+/// in flight; a lane whose ray ends starts the next, or, with none left,
+/// trades places with the last lane in flight.
+#[inline(always)]
+pub(crate) fn round_robin<L, const K: usize>(
+    lanes: &mut [L; K],
+    mut start: impl FnMut(&mut L) -> bool,
+    mut step: impl FnMut(&mut L) -> bool,
+) {
+    // Lanes `..n` are in flight.
+    let mut n = 0;
+    while n < K && start(&mut lanes[n]) {
+        n += 1;
+    }
+    while n > 0 {
+        let mut k = 0;
+        while k < n {
+            let lane = &mut lanes[k];
+            if step(lane) || start(lane) {
                 k += 1;
+            } else {
+                n -= 1;
+                lanes.swap(k, n);
             }
         }
     }

@@ -513,7 +513,7 @@ impl<const W: usize> WideBvh<W> {
         let nodes: &[WideNode<W>] = &self.nodes;
         let mut next = 0;
         // Starts the next valid ray on `lane`; false when none is left.
-        let mut start = |lane: &mut WideLane| {
+        let start = |lane: &mut WideLane| {
             while let Some(ray) = rays.get(next) {
                 next += 1;
                 if ray.is_valid() {
@@ -538,49 +538,34 @@ impl<const W: usize> WideBvh<W> {
             index: 0,
             stack: WalkStack::new(),
         });
-        // Lanes `..n` are in flight; a lane whose ray ends with none left
-        // to start trades places with the last in flight.
-        let mut n = 0;
-        while n < K && start(&mut lanes[n]) {
-            n += 1;
-        }
-        while n > 0 {
-            let mut k = 0;
-            while k < n {
-                let l = &mut lanes[k];
-                let live = if l.cur.count == 0 {
-                    if !l.stack.has_room(W - 1) {
-                        l.stack.spill();
+        super::round_robin(&mut lanes, start, |l| {
+            let live = if l.cur.count == 0 {
+                if !l.stack.has_room(W - 1) {
+                    l.stack.spill();
+                }
+                let node = &nodes[l.cur.child as usize];
+                let mut t = [0.0f32; W];
+                let mask = test(node, &l.ray, cull_bound(l.tmax), &mut t);
+                match enter::<ORDERED, W>(nodes, node, mask, &t, &mut l.stack) {
+                    Some(e) => {
+                        l.cur = e;
+                        true
                     }
-                    let node = &nodes[l.cur.child as usize];
-                    let mut t = [0.0f32; W];
-                    let mask = test(node, &l.ray, cull_bound(l.tmax), &mut t);
-                    match enter::<ORDERED, W>(nodes, node, mask, &t, &mut l.stack) {
-                        Some(e) => {
-                            l.cur = e;
-                            true
-                        }
-                        None => l.pop(),
-                    }
+                    None => l.pop(),
+                }
+            } else {
+                l.tmax = leaf(l.index, l.cur.child, l.cur.count, l.tmax);
+                l.tmax >= l.tmin && l.pop()
+            };
+            if live {
+                if l.cur.count == 0 {
+                    simd::prefetch(&nodes[l.cur.child as usize]);
                 } else {
-                    l.tmax = leaf(l.index, l.cur.child, l.cur.count, l.tmax);
-                    l.tmax >= l.tmin && l.pop()
-                };
-                if live {
-                    if l.cur.count == 0 {
-                        simd::prefetch(&nodes[l.cur.child as usize]);
-                    } else {
-                        prefetch_leaf(l.cur.child);
-                    }
-                    k += 1;
-                } else if start(l) {
-                    k += 1;
-                } else {
-                    n -= 1;
-                    lanes.swap(k, n);
+                    prefetch_leaf(l.cur.child);
                 }
             }
-        }
+            live
+        });
     }
 }
 
