@@ -9,7 +9,9 @@
 //! fallback, without fused multiply-adds, so their results are identical.
 #![allow(unsafe_code)]
 
+#[cfg(target_arch = "x86_64")]
 use crate::bvh::{BoxRay, Bvh, NodePair, PairRay, WideNode};
+#[cfg(target_arch = "x86_64")]
 use crate::BlockHits;
 use raymesh_geometry::Ray;
 
@@ -90,6 +92,8 @@ pub(crate) fn prefetch<T>(x: &T) {
             unsafe { _mm_prefetch::<_MM_HINT_T0>(p.wrapping_add(line)) };
         }
     }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = x;
 }
 
 /// [`prefetch`] of `v[i]`'s first cache line, with no bounds check: an
@@ -467,6 +471,7 @@ pub(crate) fn triangles8(
 
 /// The kernel's masks restricted to the block's `count` lanes, and the
 /// lanes to redo taken out of the hits.
+#[cfg(target_arch = "x86_64")]
 #[inline(always)]
 fn active_lanes(hit: u32, redo: u32, count: usize, out: BlockHits) -> (u32, u32, BlockHits) {
     let active = if count >= 8 {
@@ -500,6 +505,7 @@ impl Avx2 {
 /// rows the kernel reads (corner `c`, permuted axis `a`: row
 /// `3 * c + k[a]`), rows `stride` floats apart.
 #[derive(Clone, Copy, Debug, Default)]
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 pub struct BlockRay {
     shear: [f32; 3],
     origin: [f32; 3],
@@ -525,6 +531,7 @@ impl BlockRay {
     }
 
     /// The row stride these constants were made for.
+    #[cfg(target_arch = "x86_64")]
     #[inline(always)]
     pub(crate) fn stride(&self) -> usize {
         self.stride

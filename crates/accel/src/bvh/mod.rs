@@ -470,7 +470,7 @@ impl PairRay {
 
     /// Changes the lower end of the ray's interval (tests give the node
     /// tests `tmin`s a valid ray cannot have).
-    #[cfg(test)]
+    #[cfg(all(test, target_arch = "x86_64"))]
     pub(crate) fn set_tmin(&mut self, tmin: f32) {
         self.tmin = tmin;
         self.plane.tmin = tmin;

@@ -48,12 +48,13 @@ impl<const W: usize> WideNode<W> {
     };
 
     /// A node with every slot empty.
-    #[cfg(test)]
+    #[cfg(all(test, target_arch = "x86_64"))]
     pub(crate) fn empty() -> Self {
         Self::EMPTY
     }
 
     /// Pointers to the three rows of lower bounds (x, y, z), `W` floats each.
+    #[cfg(target_arch = "x86_64")]
     pub(crate) fn min_rows(&self) -> [*const f32; 3] {
         [
             self.min[0].as_ptr(),
@@ -63,6 +64,7 @@ impl<const W: usize> WideNode<W> {
     }
 
     /// Pointers to the three rows of upper bounds (x, y, z), `W` floats each.
+    #[cfg(target_arch = "x86_64")]
     pub(crate) fn max_rows(&self) -> [*const f32; 3] {
         [
             self.max[0].as_ptr(),
@@ -1045,6 +1047,7 @@ fn range_within(bin: &Bvh, k: u32, levels: usize) -> Option<(u32, u32)> {
 /// axes run backwards (so the near plane is the box's max), and `tmin`;
 /// computed once per ray, before the traversal.
 #[derive(Clone, Copy, Debug, Default)]
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 pub struct BoxRay {
     pub(crate) origin: [f32; 3],
     pub(crate) inv_dir: [f32; 3],
