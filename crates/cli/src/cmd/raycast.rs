@@ -46,8 +46,9 @@ pub struct Args {
     /// dominant axis are traced one by one. Same hits, bit for bit.
     #[arg(long, conflicts_with = "any_hit")]
     pub packets: bool,
-    /// Trace each task's rays as a stream (`Scene::intersect_stream`,
-    /// `Scene::any_hit_stream`): a few rays walk the tree at once,
+    /// Trace each task's rays as a stream (`Scene::stream_bare`, the hits
+    /// of `Scene::intersect_stream` and `Scene::any_hit_stream` without
+    /// their normals): a few rays walk the tree at once,
     /// interleaved, which hides memory latency on incoherent rays (random
     /// directions), most on meshes far larger than the caches; slower on
     /// coherent ones. BVHs only (bvh-median, bvh-binned, bvh-sweep, bvh4,
