@@ -442,30 +442,66 @@ unsafe fn le_mask8_avx(a: &[f32; 8], b: &[f32; 8]) -> u32 {
     _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(a, b)) as u32
 }
 
+/// Floats of one group of [`GROUP_SLOTS`] triangles in the corner rows'
+/// layout (see [`crate::Triangles`]): their 9 rows (corner × axis) of 8
+/// lanes, one after another.
+pub(crate) const GROUP: usize = 9 * GROUP_SLOTS;
+
+/// Triangles a group of the rows' layout holds (one lane each).
+pub(crate) const GROUP_SLOTS: usize = 8;
+
+/// Where a block of `count` (at most 8) triangles from slot `first` lies
+/// in the grouped rows: the float offset of its first lane in row 0, and
+/// the offset from each load to the second one that a block straddling
+/// two groups takes its last lanes from (0 when it lies in one group).
+///
+/// In group `g` (slots `8g..8g + 8`), row `r` lane `l` is float
+/// `72g + 8r + l`. A block's lanes from `first` run on from its row
+/// into the next row's first lanes; those of the next group sit exactly
+/// 64 floats (a group less one row) further on, in the same row.
+#[inline(always)]
+pub(crate) fn block_at(first: usize, count: usize) -> (usize, usize) {
+    let (g, l) = (first / GROUP_SLOTS, first % GROUP_SLOTS);
+    let span = if l + count > GROUP_SLOTS {
+        GROUP - GROUP_SLOTS
+    } else {
+        0
+    };
+    (g * GROUP + l, span)
+}
+
+/// Floats past a block's offset ([`block_at`]) that its loads read: the
+/// last row's (offset 64), its second load (`span`) and 8 lanes.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn block_reach(span: usize) -> usize {
+    (GROUP - GROUP_SLOTS) + span + 8
+}
+
 /// The watertight ray–triangle test of
 /// [`raymesh_geometry::intersect_triangle`] on up to 8 triangles at once:
-/// lanes `first..first + count` of 9 rows (corner × axis) laid `stride`
-/// floats apart in `data`; lanes past `count` are ignored. Returns the
-/// mask of lanes hit (their `t`, `u`, `v` written to `out`) and the mask
-/// of lanes whose edge function rounded to exactly zero: those need the
-/// scalar test's f64 path, and are not in the hit mask. Panics if a row
-/// would be read past `data` or the CPU lacks AVX2.
+/// slots `first..first + count` of rows grouped as [`crate::Triangles`]
+/// lays them out ([`block_at`]); lanes past `count` are ignored. Returns
+/// the mask of lanes hit (their `t`, `u`, `v` written to `out`) and the
+/// mask of lanes whose edge function rounded to exactly zero: those need
+/// the scalar test's f64 path, and are not in the hit mask. Panics if a
+/// row would be read past `data` or the CPU lacks AVX2.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 pub(crate) fn triangles8(
     data: &[f32],
-    stride: usize,
     first: usize,
     count: usize,
     ray: &Ray,
     tmax: f32,
 ) -> (u32, u32, BlockHits) {
-    // Row 8's lanes end at 8 * stride + first + 8, inside 9 * stride.
-    assert!(first + 8 <= stride && 9 * stride <= data.len());
+    let (at, span) = block_at(first, count);
+    assert!(at + block_reach(span) <= data.len());
     assert!(cpu_has_avx2());
-    // SAFETY: lanes `first..first + 8` of each of the 9 rows lie inside
-    // `data` (asserted), and the CPU has AVX2 (asserted).
-    let (hit, redo, out) = unsafe { triangles8_avx(data.as_ptr().add(first), stride, ray, tmax) };
+    // SAFETY: every load (a row offset of at most 64, plus `span`, then 8
+    // lanes) lies inside `data` (asserted), and the CPU has AVX2 (asserted).
+    let (hit, redo, out) =
+        unsafe { triangles8_avx(data.as_ptr().add(at), first % GROUP_SLOTS, span, ray, tmax) };
     active_lanes(hit, redo, count, out)
 }
 
@@ -499,11 +535,12 @@ impl Avx2 {
     }
 }
 
-/// What the triangle kernel needs of a ray over one set of rows, computed
-/// once per ray instead of once per block: the shear constants, the
-/// origin with its axes permuted, `tmin`, and the offset of each of the 9
-/// rows the kernel reads (corner `c`, permuted axis `a`: row
-/// `3 * c + k[a]`), rows `stride` floats apart.
+/// What the triangle kernel needs of a ray, computed once per ray instead
+/// of once per block: the shear constants, the origin with its axes
+/// permuted, `tmin`, and the offset in a group of each of the 9 rows the
+/// kernel reads (corner `c`, permuted axis `a`: row `3 * c + k[a]`, at
+/// `8 * row`). The same for any triangles: the grouped layout
+/// ([`crate::Triangles`]) places rows alike whatever their number.
 #[derive(Clone, Copy, Debug, Default)]
 #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 pub struct BlockRay {
@@ -511,37 +548,34 @@ pub struct BlockRay {
     origin: [f32; 3],
     tmin: f32,
     rows: [usize; 9],
-    /// The distance between rows these offsets were made for; the
-    /// largest offset is row 8's (corner 2's axis 2, always read).
-    stride: usize,
 }
 
 impl BlockRay {
-    /// The kernel's constants for `ray` over rows `stride` floats apart.
+    /// The kernel's constants for `ray`.
     #[inline(always)]
-    pub(crate) fn new(ray: &Ray, stride: usize) -> Self {
+    pub(crate) fn new(ray: &Ray) -> Self {
         let (s, k) = ray.shear();
         Self {
             shear: s.to_array(),
             origin: ray.permute(ray.origin()).to_array(),
             tmin: ray.tmin(),
-            rows: std::array::from_fn(|r| (3 * (r / 3) + k[r % 3]) * stride),
-            stride,
+            rows: std::array::from_fn(|r| kernel_row(r, k)),
         }
-    }
-
-    /// The row stride these constants were made for.
-    #[cfg(target_arch = "x86_64")]
-    #[inline(always)]
-    pub(crate) fn stride(&self) -> usize {
-        self.stride
     }
 }
 
+/// The offset in a group of the row the kernel reads as its row `r`
+/// (corner `r / 3`, axis `k[r % 3]` of the ray's permutation): at most
+/// 64, row 8's.
+#[inline(always)]
+fn kernel_row(r: usize, k: [usize; 3]) -> usize {
+    (3 * (r / 3) + k[r % 3]).min(8) * GROUP_SLOTS
+}
+
 /// [`triangles8`] inside an AVX2 traversal: the ray's constants come
-/// precomputed ([`BlockRay`], for these rows' `stride`) and the AVX2 check
-/// is the `Avx2` proof, so that the kernel inlines into the traversal's
-/// loop with nothing redone per block. The same results, bit for bit.
+/// precomputed ([`BlockRay`]) and the AVX2 check is the `Avx2` proof, so
+/// that the kernel inlines into the traversal's loop with nothing redone
+/// per block. The same results, bit for bit.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 pub(crate) fn triangles8_pre(
@@ -552,16 +586,18 @@ pub(crate) fn triangles8_pre(
     tr: &BlockRay,
     tmax: f32,
 ) -> (u32, u32, BlockHits) {
-    // The farthest row read starts at row 8's offset; its 8 lanes from
-    // `first` must lie inside `data`.
-    assert!(first + 8 * tr.stride + 8 <= data.len());
-    // SAFETY: every row offset is at most row 8's, so each load of 8
-    // lanes from `first` stays inside `data` (asserted); the CPU has AVX2
-    // (the `Avx2` proof).
+    let (at, span) = block_at(first, count);
+    assert!(at + block_reach(span) <= data.len());
+    // SAFETY: every row offset is at most 64 (a `BlockRay`'s come from
+    // `kernel_row`, or are zero by default), so each of the two loads of
+    // 8 lanes a row stays inside `data` (asserted); the CPU has AVX2 (the
+    // `Avx2` proof).
     let (hit, redo, out) = unsafe {
         triangles8_core(
-            data.as_ptr().add(first),
+            data.as_ptr().add(at),
             |r| tr.rows[r],
+            first % GROUP_SLOTS,
+            span,
             tr.shear,
             tr.origin,
             tr.tmin,
@@ -572,22 +608,33 @@ pub(crate) fn triangles8_pre(
 }
 
 /// # Safety
-/// The CPU must have AVX; `rows.add(r * stride)` must address 8 readable
-/// floats for each row `r` in `0..9`.
+/// The CPU must have AVX2; for each row offset `o` of at most 64,
+/// `rows.add(o)` and `rows.add(o + span)` must address 8 readable floats.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
 unsafe fn triangles8_avx(
     rows: *const f32,
-    stride: usize,
+    lane: usize,
+    span: usize,
     ray: &Ray,
     tmax: f32,
 ) -> (u32, u32, BlockHits) {
     let (s, k) = ray.shear();
     let o = ray.permute(ray.origin());
-    let row = |r: usize| (3 * (r / 3) + k[r % 3]) * stride;
     // SAFETY: as this function's contract.
-    unsafe { triangles8_core(rows, row, s.to_array(), o.to_array(), ray.tmin(), tmax) }
+    unsafe {
+        triangles8_core(
+            rows,
+            |r| kernel_row(r, k),
+            lane,
+            span,
+            s.to_array(),
+            o.to_array(),
+            ray.tmin(),
+            tmax,
+        )
+    }
 }
 
 /// The kernel itself, inlined into its caller: called from code compiled
@@ -596,16 +643,22 @@ unsafe fn triangles8_avx(
 ///
 /// The ray comes as its shear constants, its origin with the axes
 /// permuted, and `tmin`; row `r` of the 9 (corner `r / 3`, permuted axis
-/// `r % 3`) starts `row(r)` floats after `rows`.
+/// `r % 3`) starts `row(r)` floats after `rows`. The block's first slot
+/// is lane `lane` of its group: its lanes from `8 - lane` on come from
+/// the load `span` floats further (the next group's, see [`block_at`]).
 ///
 /// # Safety
-/// The CPU must have AVX2; `rows.add(row(r))` must address 8 readable
-/// floats for each row `r` in `0..9`.
+/// The CPU must have AVX2; `rows.add(row(r))` and
+/// `rows.add(row(r) + span)` must address 8 readable floats for each row
+/// `r` in `0..9`.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 unsafe fn triangles8_core(
     rows: *const f32,
     row: impl Fn(usize) -> usize,
+    lane: usize,
+    span: usize,
     shear: [f32; 3],
     origin: [f32; 3],
     tmin: f32,
@@ -622,14 +675,26 @@ unsafe fn triangles8_core(
         _mm256_set1_ps(origin[1]),
         _mm256_set1_ps(origin[2]),
     );
+    // Lanes from `8 - lane` on: the next group's.
+    let next = _mm256_castsi256_ps(_mm256_cmpgt_epi32(
+        _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
+        _mm256_set1_epi32(7 - lane as i32),
+    ));
+    // Row `r`'s 8 lanes (macros, not closures, so that the intrinsics
+    // inline wherever this function does).
+    macro_rules! load {
+        ($r:expr) => {{
+            let p = rows.add(row($r));
+            _mm256_blendv_ps(_mm256_loadu_ps(p), _mm256_loadu_ps(p.add(span)), next)
+        }};
+    }
     // Corner `c` relative to the ray origin and sheared to 2D, in the
-    // scalar test's order of operations (a macro, not a closure, so that
-    // the intrinsics inline wherever this function does).
+    // scalar test's order of operations.
     macro_rules! shear {
         ($c:expr) => {{
-            let x = _mm256_sub_ps(_mm256_loadu_ps(rows.add(row(3 * $c))), ox);
-            let y = _mm256_sub_ps(_mm256_loadu_ps(rows.add(row(3 * $c + 1))), oy);
-            let z = _mm256_sub_ps(_mm256_loadu_ps(rows.add(row(3 * $c + 2))), oz);
+            let x = _mm256_sub_ps(load!(3 * $c), ox);
+            let y = _mm256_sub_ps(load!(3 * $c + 1), oy);
+            let z = _mm256_sub_ps(load!(3 * $c + 2), oz);
             (
                 _mm256_sub_ps(x, _mm256_mul_ps(sx, z)),
                 _mm256_sub_ps(y, _mm256_mul_ps(sy, z)),
@@ -815,27 +880,22 @@ mod tests {
         Ok(())
     }
 
-    /// A `BlockRay` made for other triangles' rows (another stride) is
-    /// refused, not used to read the wrong corners; its own rows' one
-    /// finds the hit.
+    /// A `BlockRay` holds nothing of the triangles it was made with (the
+    /// grouped rows lie alike for any number of triangles): made over one
+    /// triangle, it finds the hits in a block of another set's.
     #[test]
-    fn block_ray_for_other_rows_is_refused() {
+    fn block_ray_serves_any_triangles() {
         use crate::{Primitives, Triangles};
         let Some(avx) = Avx2::detect() else { return };
         let tri = [Vec3::ZERO, Vec3::X, Vec3::Y];
         let one = Triangles::from_corners(&[tri]);
         let many = Triangles::from_corners(&[tri; 20]);
         let ray = Ray::new(Vec3::new(0.2, 0.2, -1.0), Vec3::Z, 0.0, f32::INFINITY);
-        // Rows closer together than `many`'s: every read would stay
-        // inside `many`'s rows, at the wrong corners.
-        let other = one.block_ray(&ray);
-        let refused = std::panic::catch_unwind(|| {
-            many.intersect_block_pre(avx, &other, 0, 8, &ray, f32::INFINITY)
-        });
-        assert!(refused.is_err());
-        let own = many.block_ray(&ray);
-        let (mask, hits) = many.intersect_block_pre(avx, &own, 0, 8, &ray, f32::INFINITY);
-        assert_eq!((mask, hits.t), (0xff, [1.0; 8]));
+        let pre = one.block_ray(&ray);
+        for first in [0, 5, 12] {
+            let (mask, hits) = many.intersect_block_pre(avx, &pre, first, 8, &ray, f32::INFINITY);
+            assert_eq!((mask, hits.t), (0xff, [1.0; 8]), "block from {first}");
+        }
     }
 
     /// Lattice coordinates make edge functions round to exactly zero
@@ -852,14 +912,15 @@ mod tests {
         #[test]
         fn avx_triangles_match_scalar(
             tris in proptest::collection::vec(
-                prop_oneof![(hard_vec3(), hard_vec3(), hard_vec3()), (lattice(), lattice(), lattice())], 16),
-            first in 0usize..9, count in 0usize..9, extra in 0usize..9,
+                prop_oneof![(hard_vec3(), hard_vec3(), hard_vec3()), (lattice(), lattice(), lattice())], 32),
+            first in 0usize..24, count in 0usize..9, extra in 0usize..9,
             o in prop_oneof![hard_vec3(), lattice()], d in prop_oneof![hard_vec3(), lattice()],
             tmin in prop_oneof![Just(0.0f32), hard_coord()], tmax in hard_coord(),
         ) {
             prop_assume!(cpu_has_avx2());
-            // A block anywhere in the rows, up to their very end (where
-            // its lanes past `count` read the padding).
+            // A block anywhere in the rows: in one group or straddling two
+            // (from any lane), up to their very end (where its lanes past
+            // `count` read the padding group).
             let len = (first + count + extra).min(tris.len());
             let corners: Vec<[Vec3; 3]> = tris[..len].iter().map(|&(a, b, c)| [a, b, c]).collect();
             let tris = crate::Triangles::from_corners(&corners);
