@@ -158,6 +158,33 @@ pub trait Primitives: Send + Sync {
         }
         hit
     }
+    /// Tests primitives `first..first + count` in turn against the lanes
+    /// `lanes` of a packet, each as [`Self::intersect_packet`] does, lane
+    /// `k` over `[tmin, tmax[k]]` as the hits before left `tmax`: calls
+    /// `offer(k, prim, hit, tmax)` for each lane a primitive hits, which
+    /// may lower `tmax[k]`. A packet traversal's leaf in one call, so that
+    /// triangles run it in one AVX2 region with their kernel inlined; the
+    /// default loops over [`Self::intersect_packet`].
+    #[inline]
+    fn intersect_packet_run(
+        &self,
+        first: u32,
+        count: u32,
+        packet: &Packet8,
+        lanes: u32,
+        tmax: &mut [f32; LANES],
+        offer: &mut impl FnMut(usize, u32, PrimHit, &mut [f32; LANES]),
+    ) {
+        for prim in first..first + count {
+            let mut hits = [PrimHit::default(); LANES];
+            let mut m = self.intersect_packet(prim, packet, lanes, tmax, &mut hits);
+            while m != 0 {
+                let k = m.trailing_zeros() as usize;
+                m &= m - 1;
+                offer(k, prim, hits[k], tmax);
+            }
+        }
+    }
     /// Unit geometric normal of primitive `i` at a hit (not flipped toward the ray).
     fn normal(&self, i: u32, ray: &Ray, hit: &PrimHit) -> Vec3;
     /// Puts the primitives in another order, in place: new primitive `k`
@@ -517,6 +544,25 @@ impl Primitives for Triangles {
     ) -> u32 {
         packet::triangle(packet, self.corners(i), lanes, tmax, out)
     }
+    #[inline(always)]
+    fn intersect_packet_run(
+        &self,
+        first: u32,
+        count: u32,
+        packet: &Packet8,
+        lanes: u32,
+        tmax: &mut [f32; LANES],
+        offer: &mut impl FnMut(usize, u32, PrimHit, &mut [f32; LANES]),
+    ) {
+        packet::triangle_run(
+            packet,
+            first..first + count,
+            |i| self.corners(i),
+            lanes,
+            tmax,
+            offer,
+        );
+    }
     fn clip(&self, i: u32, within: Aabb, axis: usize, pos: f32) -> (Aabb, Aabb) {
         clip_triangle(self.corners(i), within, axis, pos)
     }
@@ -676,6 +722,29 @@ impl<P: Primitives + ?Sized> Primitives for &P {
     #[inline(always)]
     fn intersect_ids(&self, ids: &[u32], ray: &Ray, tmax: f32) -> (u32, BlockHits) {
         (**self).intersect_ids(ids, ray, tmax)
+    }
+    #[inline(always)]
+    fn intersect_packet(
+        &self,
+        i: u32,
+        packet: &Packet8,
+        lanes: u32,
+        tmax: &[f32; LANES],
+        out: &mut [PrimHit; LANES],
+    ) -> u32 {
+        (**self).intersect_packet(i, packet, lanes, tmax, out)
+    }
+    #[inline(always)]
+    fn intersect_packet_run(
+        &self,
+        first: u32,
+        count: u32,
+        packet: &Packet8,
+        lanes: u32,
+        tmax: &mut [f32; LANES],
+        offer: &mut impl FnMut(usize, u32, PrimHit, &mut [f32; LANES]),
+    ) {
+        (**self).intersect_packet_run(first, count, packet, lanes, tmax, offer);
     }
     fn normal(&self, i: u32, ray: &Ray, hit: &PrimHit) -> Vec3 {
         (**self).normal(i, ray, hit)

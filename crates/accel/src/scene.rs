@@ -558,17 +558,16 @@ impl<P: Primitives> Scene<P> {
                 }
                 return;
             }
-            for prim in first..first + count {
-                let mut hits = [PrimHit::default(); LANES];
-                let mut m = self
-                    .prims
-                    .intersect_packet(prim, &p, lanes, tmax, &mut hits);
-                while m != 0 {
-                    let i = m.trailing_zeros() as usize;
-                    m &= m - 1;
-                    self.offer(&mut best[i], &mut tmax[i], prim, hits[i]);
-                }
-            }
+            self.prims.intersect_packet_run(
+                first,
+                count,
+                &p,
+                lanes,
+                tmax,
+                &mut |i, prim, h, tmax| {
+                    self.offer(&mut best[i], &mut tmax[i], prim, h);
+                },
+            );
         };
         match wide {
             WideRef::W4(b) => b.traverse_packet(&p, &mut tmax, &mut leaf),

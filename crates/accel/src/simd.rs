@@ -251,6 +251,40 @@ unsafe fn stream_loop_avx2_impl(
     });
 }
 
+/// A packet's leaf ([`crate::packet::triangle_run`]) compiled with AVX2,
+/// the packet triangle test inlined into the loop over the leaf: handed to
+/// [`with_avx2`] as a closure, the loop stayed a function of its own,
+/// compiled without AVX2. Panics without AVX2.
+#[cfg(target_arch = "x86_64")]
+pub(crate) fn packet_run_avx2(
+    p: &crate::Packet8,
+    prims: std::ops::Range<u32>,
+    corners: impl Fn(u32) -> [raymesh_geometry::Vec3; 3],
+    lanes: u32,
+    tmax: &mut [f32; crate::LANES],
+    offer: &mut impl FnMut(usize, u32, crate::PrimHit, &mut [f32; crate::LANES]),
+) {
+    assert!(cpu_has_avx2());
+    // SAFETY: the CPU has AVX2 (asserted); the function has no other
+    // requirement.
+    unsafe { packet_run_avx2_impl(p, prims, corners, lanes, tmax, offer) }
+}
+
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn packet_run_avx2_impl(
+    p: &crate::Packet8,
+    prims: std::ops::Range<u32>,
+    corners: impl Fn(u32) -> [raymesh_geometry::Vec3; 3],
+    lanes: u32,
+    tmax: &mut [f32; crate::LANES],
+    offer: &mut impl FnMut(usize, u32, crate::PrimHit, &mut [f32; crate::LANES]),
+) {
+    crate::packet::triangle_run_loop(p, prims, corners, lanes, tmax, offer);
+}
+
 /// The slab test of a binary BVH node's two children (one cache line) in
 /// AVX, one child a 128-bit half: the same entry distances and hits as
 /// [`crate::bvh::pair_slab_scalar`] (two [`raymesh_geometry::Aabb::slab`]s),
