@@ -16,7 +16,7 @@
 //! loops below are plain Rust over eight lanes, which the compiler turns
 //! into AVX under [`crate::simd::with_avx2`] and into SSE elsewhere.
 
-use crate::PrimHit;
+use crate::{BlockHits, PrimHit};
 use raymesh_geometry::{
     intersect_triangle, max_nan_second as max_ns, min_nan_second as min_ns, Ray, Vec3, ROBUST_EXIT,
 };
@@ -42,9 +42,9 @@ pub struct Packet8 {
     /// The watertight test's axis order `(kx, ky, kz)` (every lane's).
     k: [usize; 3],
     /// Origins in that axis order.
-    porigin: [[f32; LANES]; 3],
+    pub(crate) porigin: [[f32; LANES]; 3],
     /// Shear constants of each lane (see [`Ray::shear`]).
-    shear: [[f32; LANES]; 3],
+    pub(crate) shear: [[f32; LANES]; 3],
     /// The packet's bounds for [`frustum`], when every lane's reciprocal
     /// direction is finite.
     pub(crate) frustum: Option<Frustum>,
@@ -289,9 +289,9 @@ pub(crate) fn triangle(
 ) -> u32 {
     #[cfg(target_arch = "x86_64")]
     if crate::simd::has_avx2() {
-        return crate::simd::with_avx2(|| triangle_lanes(p, corners, lanes, tmax, out));
+        return crate::simd::packet_triangle(p, corners, lanes, tmax, out);
     }
-    triangle_lanes(p, corners, lanes, tmax, out)
+    triangle_lanes(p, corners, lanes, tmax, out, lanes_portable)
 }
 
 /// [`triangle`] for each primitive of `prims` in turn (corners given by
@@ -314,10 +314,12 @@ pub(crate) fn triangle_run(
     if crate::simd::has_avx2() {
         return crate::simd::packet_run_avx2(p, prims, corners, lanes, tmax, offer);
     }
-    triangle_run_loop(p, prims, corners, lanes, tmax, offer);
+    triangle_run_loop(p, prims, corners, lanes, tmax, offer, lanes_portable);
 }
 
-/// [`triangle_run`]'s loop, inlined into the AVX2 and the portable callers.
+/// [`triangle_run`]'s loop, inlined into the AVX2 and the portable
+/// callers, with their test of the eight lanes (`kernel`, as
+/// [`lanes_portable`]).
 #[inline(always)]
 pub(crate) fn triangle_run_loop(
     p: &Packet8,
@@ -326,10 +328,11 @@ pub(crate) fn triangle_run_loop(
     lanes: u32,
     tmax: &mut [f32; LANES],
     offer: &mut impl FnMut(usize, u32, PrimHit, &mut [f32; LANES]),
+    kernel: impl Fn(&Packet8, [[f32; 3]; 3], &[f32; LANES]) -> (u32, u32, BlockHits),
 ) {
     for prim in prims {
         let mut hits = [PrimHit::default(); LANES];
-        let mut m = triangle_lanes(p, corners(prim), lanes, tmax, &mut hits);
+        let mut m = triangle_lanes(p, corners(prim), lanes, tmax, &mut hits, &kernel);
         while m != 0 {
             let k = m.trailing_zeros() as usize;
             m &= m - 1;
@@ -338,21 +341,61 @@ pub(crate) fn triangle_run_loop(
     }
 }
 
-/// [`triangle`]'s body, inlined into the AVX2 and the portable callers.
+/// [`triangle`]'s body with the lanes' test `kernel` ([`lanes_portable`]
+/// or its AVX2 form): the lanes it hits written to `out`, those whose
+/// edge functions rounded to zero redone with the scalar test's f64 path.
 #[inline(always)]
-fn triangle_lanes(
+pub(crate) fn triangle_lanes(
     p: &Packet8,
     corners: [Vec3; 3],
     lanes: u32,
     tmax: &[f32; LANES],
     out: &mut [PrimHit; LANES],
+    kernel: impl Fn(&Packet8, [[f32; 3]; 3], &[f32; LANES]) -> (u32, u32, BlockHits),
 ) -> u32 {
     let [kx, ky, kz] = p.k;
     let c = corners.map(|v| {
         let a = v.to_array();
         [a[kx], a[ky], a[kz]]
     });
-    let (mut t, mut bu, mut bv) = ([0.0f32; LANES], [0.0f32; LANES], [0.0f32; LANES]);
+    let (ok, redo, h) = kernel(p, c, tmax);
+    let redo = redo & lanes;
+    let mut hit = ok & lanes & !redo;
+    let mut m = hit;
+    while m != 0 {
+        let i = m.trailing_zeros() as usize;
+        m &= m - 1;
+        out[i] = h.get(i);
+    }
+    let mut m = redo;
+    while m != 0 {
+        let i = m.trailing_zeros() as usize;
+        m &= m - 1;
+        let [a, b, cc] = corners;
+        if let Some(h) = intersect_triangle(&p.rays[i], tmax[i], a, b, cc) {
+            out[i] = PrimHit {
+                t: h.t,
+                u: h.u,
+                v: h.v,
+            };
+            hit |= 1 << i;
+        }
+    }
+    hit
+}
+
+/// The eight lanes' test of one triangle (corners `c`, axes in the
+/// packet's order `k`), in plain Rust: the mask of lanes inside with `t`
+/// in their interval, the mask of lanes whose edge functions rounded to
+/// exactly zero, and each lane's `t`, `u`, `v`. The AVX2 kernel
+/// (`simd::packet_lanes_avx`) makes the same operations in the same order.
+#[inline(always)]
+pub(crate) fn lanes_portable(
+    p: &Packet8,
+    c: [[f32; 3]; 3],
+    tmax: &[f32; LANES],
+) -> (u32, u32, BlockHits) {
+    let mut h = BlockHits::default();
     let (mut ok, mut redo) = ([false; LANES], [false; LANES]);
     for i in 0..LANES {
         let (o, s) = (
@@ -373,39 +416,14 @@ fn triangle_lanes(
         let det = u + v + w;
         let t_scaled = u * (s[2] * a[2]) + v * (s[2] * b[2]) + w * (s[2] * cc[2]);
         let inv_det = 1.0 / det;
-        t[i] = t_scaled * inv_det;
-        bu[i] = v * inv_det;
-        bv[i] = w * inv_det;
+        h.t[i] = t_scaled * inv_det;
+        h.u[i] = v * inv_det;
+        h.v[i] = w * inv_det;
         // `det != 0.0` alone would let NaN through; `t >= tmin` rejects NaN.
-        ok[i] = !outside & (det != 0.0) & !det.is_nan() & (t[i] >= p.tmin[i]) & (t[i] <= tmax[i]);
+        ok[i] =
+            !outside & (det != 0.0) & !det.is_nan() & (h.t[i] >= p.tmin[i]) & (h.t[i] <= tmax[i]);
     }
-    let redo = lane_mask(&redo) & lanes;
-    let mut hit = lane_mask(&ok) & lanes & !redo;
-    let mut m = hit;
-    while m != 0 {
-        let i = m.trailing_zeros() as usize;
-        m &= m - 1;
-        out[i] = PrimHit {
-            t: t[i],
-            u: bu[i],
-            v: bv[i],
-        };
-    }
-    let mut m = redo;
-    while m != 0 {
-        let i = m.trailing_zeros() as usize;
-        m &= m - 1;
-        let [a, b, cc] = corners;
-        if let Some(h) = intersect_triangle(&p.rays[i], tmax[i], a, b, cc) {
-            out[i] = PrimHit {
-                t: h.t,
-                u: h.u,
-                v: h.v,
-            };
-            hit |= 1 << i;
-        }
-    }
-    hit
+    (lane_mask(&ok), lane_mask(&redo), h)
 }
 
 #[cfg(test)]

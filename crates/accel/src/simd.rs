@@ -282,7 +282,151 @@ unsafe fn packet_run_avx2_impl(
     tmax: &mut [f32; crate::LANES],
     offer: &mut impl FnMut(usize, u32, crate::PrimHit, &mut [f32; crate::LANES]),
 ) {
-    crate::packet::triangle_run_loop(p, prims, corners, lanes, tmax, offer);
+    // SAFETY (of each call): this function runs only on CPUs with AVX2.
+    crate::packet::triangle_run_loop(p, prims, corners, lanes, tmax, offer, |p, c, t| unsafe {
+        packet_lanes_avx(p, c, t)
+    });
+}
+
+/// [`crate::packet::triangle`] with the lanes' test in AVX2
+/// ([`packet_lanes_avx`]). Panics without AVX2.
+#[cfg(target_arch = "x86_64")]
+pub(crate) fn packet_triangle(
+    p: &crate::Packet8,
+    corners: [raymesh_geometry::Vec3; 3],
+    lanes: u32,
+    tmax: &[f32; crate::LANES],
+    out: &mut [crate::PrimHit; crate::LANES],
+) -> u32 {
+    assert!(cpu_has_avx2());
+    // SAFETY: the CPU has AVX2 (asserted); the function has no other
+    // requirement.
+    unsafe { packet_triangle_impl(p, corners, lanes, tmax, out) }
+}
+
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn packet_triangle_impl(
+    p: &crate::Packet8,
+    corners: [raymesh_geometry::Vec3; 3],
+    lanes: u32,
+    tmax: &[f32; crate::LANES],
+    out: &mut [crate::PrimHit; crate::LANES],
+) -> u32 {
+    // SAFETY (of the call): this function runs only on CPUs with AVX2.
+    crate::packet::triangle_lanes(p, corners, lanes, tmax, out, |p, c, t| unsafe {
+        packet_lanes_avx(p, c, t)
+    })
+}
+
+/// [`crate::packet::lanes_portable`] in AVX2, one ray a lane: the same
+/// operations in the same order (no fused multiply-add), so the same
+/// masks and the same bits of `t`, `u`, `v`. The portable loop, compiled
+/// with AVX2, built its masks from arrays of `bool`s lane by lane.
+///
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn packet_lanes_avx(
+    p: &crate::Packet8,
+    c: [[f32; 3]; 3],
+    tmax: &[f32; crate::LANES],
+) -> (u32, u32, BlockHits) {
+    use std::arch::x86_64::*;
+    // Macros, not closures, so that the intrinsics inline wherever this
+    // function does (in closures they stayed calls).
+    macro_rules! ld {
+        ($a:expr) => {
+            _mm256_loadu_ps($a.as_ptr())
+        };
+    }
+    let (o0, o1, o2) = (ld!(p.porigin[0]), ld!(p.porigin[1]), ld!(p.porigin[2]));
+    let (s0, s1, s2) = (ld!(p.shear[0]), ld!(p.shear[1]), ld!(p.shear[2]));
+    // Corner `q` relative to each lane's origin, sheared to 2D; its
+    // relative `z` unsheared.
+    macro_rules! corner {
+        ($q:expr) => {{
+            let x = _mm256_sub_ps(_mm256_set1_ps($q[0]), o0);
+            let y = _mm256_sub_ps(_mm256_set1_ps($q[1]), o1);
+            let z = _mm256_sub_ps(_mm256_set1_ps($q[2]), o2);
+            (
+                _mm256_sub_ps(x, _mm256_mul_ps(s0, z)),
+                _mm256_sub_ps(y, _mm256_mul_ps(s1, z)),
+                z,
+            )
+        }};
+    }
+    let (ax, ay, az) = corner!(c[0]);
+    let (bx, by, bz) = corner!(c[1]);
+    let (cx, cy, cz) = corner!(c[2]);
+    let u = _mm256_sub_ps(_mm256_mul_ps(cx, by), _mm256_mul_ps(cy, bx));
+    let v = _mm256_sub_ps(_mm256_mul_ps(ax, cy), _mm256_mul_ps(ay, cx));
+    let w = _mm256_sub_ps(_mm256_mul_ps(bx, ay), _mm256_mul_ps(by, ax));
+    let zero = _mm256_setzero_ps();
+    let redo = _mm256_or_ps(
+        _mm256_or_ps(
+            _mm256_cmp_ps::<_CMP_EQ_OQ>(u, zero),
+            _mm256_cmp_ps::<_CMP_EQ_OQ>(v, zero),
+        ),
+        _mm256_cmp_ps::<_CMP_EQ_OQ>(w, zero),
+    );
+    let outside = _mm256_and_ps(
+        _mm256_or_ps(
+            _mm256_or_ps(
+                _mm256_cmp_ps::<_CMP_LT_OQ>(u, zero),
+                _mm256_cmp_ps::<_CMP_LT_OQ>(v, zero),
+            ),
+            _mm256_cmp_ps::<_CMP_LT_OQ>(w, zero),
+        ),
+        _mm256_or_ps(
+            _mm256_or_ps(
+                _mm256_cmp_ps::<_CMP_GT_OQ>(u, zero),
+                _mm256_cmp_ps::<_CMP_GT_OQ>(v, zero),
+            ),
+            _mm256_cmp_ps::<_CMP_GT_OQ>(w, zero),
+        ),
+    );
+    let det = _mm256_add_ps(_mm256_add_ps(u, v), w);
+    let t_scaled = _mm256_add_ps(
+        _mm256_add_ps(
+            _mm256_mul_ps(u, _mm256_mul_ps(s2, az)),
+            _mm256_mul_ps(v, _mm256_mul_ps(s2, bz)),
+        ),
+        _mm256_mul_ps(w, _mm256_mul_ps(s2, cz)),
+    );
+    let inv_det = _mm256_div_ps(_mm256_set1_ps(1.0), det);
+    let t = _mm256_mul_ps(t_scaled, inv_det);
+    // Inside, `det` neither 0 nor NaN (an ordered compare), `t` in the
+    // lane's interval (NaN fails both).
+    let ok = _mm256_andnot_ps(
+        outside,
+        _mm256_and_ps(
+            _mm256_cmp_ps::<_CMP_NEQ_OQ>(det, zero),
+            _mm256_and_ps(
+                _mm256_cmp_ps::<_CMP_GE_OQ>(t, ld!(p.tmin)),
+                _mm256_cmp_ps::<_CMP_LE_OQ>(t, ld!(tmax)),
+            ),
+        ),
+    );
+    // The registers as they are: `__m256` and `[f32; 8]` have the same
+    // size, and every bit pattern is a valid float.
+    macro_rules! lanes {
+        ($x:expr) => {
+            std::mem::transmute::<__m256, [f32; 8]>($x)
+        };
+    }
+    (
+        _mm256_movemask_ps(ok) as u32,
+        _mm256_movemask_ps(redo) as u32,
+        BlockHits {
+            t: lanes!(t),
+            u: lanes!(_mm256_mul_ps(v, inv_det)),
+            v: lanes!(_mm256_mul_ps(w, inv_det)),
+        },
+    )
 }
 
 /// The slab test of a binary BVH node's two children (one cache line) in
