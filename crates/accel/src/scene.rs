@@ -271,12 +271,17 @@ impl<P: Primitives> Scene<P> {
         }
         let mut tmax = ray.tmax();
         let pre = self.prims.block_ray(ray);
-        bvh.traverse_blocks(ray, counter, &mut |first, count| {
-            self.leaf_closest_by(first, count, &mut tmax, &mut best, |s, n, t| {
-                self.prims.intersect_block_pre(avx, &pre, s, n, ray, t)
-            });
-            tmax
-        });
+        bvh.traverse_blocks_prefetching::<true, C>(
+            ray,
+            counter,
+            &mut |first, count| {
+                self.leaf_closest_by(first, count, &mut tmax, &mut best, |s, n, t| {
+                    self.prims.intersect_block_pre(avx, &pre, s, n, ray, t)
+                });
+                tmax
+            },
+            &|first| self.prims.prefetch_block(first),
+        );
         best
     }
 

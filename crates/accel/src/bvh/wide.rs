@@ -281,7 +281,26 @@ impl<const W: usize> WideBvh<W> {
         counter: &mut C,
         block: &mut impl FnMut(u32, u32) -> f32,
     ) {
-        self.traverse_blocks_in::<true, C>(ray, counter, block);
+        self.traverse_blocks_in::<true, C>(ray, counter, block, &|_| {});
+    }
+
+    /// [`Self::traverse_blocks`] (or, not `ORDERED`,
+    /// [`Self::traverse_blocks_unordered`]) calling `prefetch_leaf(first)`
+    /// for each leaf the walk pushes for later, as it prefetches the nodes
+    /// it pushes: for triangles in leaf order, the block's group of rows
+    /// ([`crate::Primitives::prefetch_block`]). Closest hits gain (random
+    /// rays, one thread: bunny00 +2–5%, a 2M-triangle sphere +0–8%);
+    /// any-hit queries, which leave most pushed leaves unvisited, lost
+    /// 1–3% on bunny00's shadow rays and do without.
+    #[inline]
+    pub(crate) fn traverse_blocks_prefetching<const ORDERED: bool, C: RayCounter>(
+        &self,
+        ray: &Ray,
+        counter: &mut C,
+        block: &mut impl FnMut(u32, u32) -> f32,
+        prefetch_leaf: &impl Fn(u32),
+    ) {
+        self.traverse_blocks_in::<ORDERED, C>(ray, counter, block, prefetch_leaf);
     }
 
     /// [`Self::traverse_blocks`] without ordering the children a ray
@@ -295,7 +314,7 @@ impl<const W: usize> WideBvh<W> {
         counter: &mut C,
         block: &mut impl FnMut(u32, u32) -> f32,
     ) {
-        self.traverse_blocks_in::<false, C>(ray, counter, block);
+        self.traverse_blocks_in::<false, C>(ray, counter, block, &|_| {});
     }
 
     #[inline(always)]
@@ -304,6 +323,7 @@ impl<const W: usize> WideBvh<W> {
         ray: &Ray,
         counter: &mut C,
         block: &mut impl FnMut(u32, u32) -> f32,
+        prefetch_leaf: &impl Fn(u32),
     ) {
         if self.nodes.is_empty() {
             return;
@@ -311,14 +331,10 @@ impl<const W: usize> WideBvh<W> {
         #[cfg(target_arch = "x86_64")]
         if W == 8 && simd::has_avx2() {
             return simd::with_avx2(|| {
-                self.traverse_with::<ORDERED, C>(ray, counter, block, |n, r, bound, t| {
-                    simd::slab8(n, r, bound, t)
-                })
+                self.traverse_with::<ORDERED, C>(ray, counter, block, prefetch_leaf, simd::slab8)
             });
         }
-        self.traverse_with::<ORDERED, C>(ray, counter, block, |n, r, bound, t| {
-            slab_scalar(n, r, bound, t)
-        });
+        self.traverse_with::<ORDERED, C>(ray, counter, block, prefetch_leaf, slab_scalar);
     }
 
     /// The traversal loop, generic over the node test (`test(node, ray,
@@ -331,6 +347,7 @@ impl<const W: usize> WideBvh<W> {
         ray: &Ray,
         counter: &mut C,
         block: &mut impl FnMut(u32, u32) -> f32,
+        prefetch_leaf: &impl Fn(u32),
         test: impl Fn(&WideNode<W>, &BoxRay, f32, &mut [f32; W]) -> u32,
     ) {
         let nodes: &[WideNode<W>] = &self.nodes;
@@ -370,7 +387,7 @@ impl<const W: usize> WideBvh<W> {
                 let mut t = [0.0f32; W];
                 let n = &nodes[i];
                 let mask = test(n, &r, bound, &mut t);
-                match enter::<ORDERED, W>(nodes, n, mask, &t, &mut stack) {
+                match enter::<ORDERED, W>(nodes, n, mask, &t, &mut stack, prefetch_leaf) {
                     Some(e) => cur = e,
                     None => {
                         if let Some(e) = stack.pop_inline(bound) {
@@ -548,7 +565,7 @@ impl<const W: usize> WideBvh<W> {
                 let node = &nodes[l.cur.child as usize];
                 let mut t = [0.0f32; W];
                 let mask = test(node, &l.ray, cull_bound(l.tmax), &mut t);
-                match enter::<ORDERED, W>(nodes, node, mask, &t, &mut l.stack) {
+                match enter::<ORDERED, W>(nodes, node, mask, &t, &mut l.stack, &|_| {}) {
                     Some(e) => {
                         l.cur = e;
                         true
@@ -582,6 +599,7 @@ fn enter<const ORDERED: bool, const W: usize>(
     mut mask: u32,
     t: &[f32; W],
     stack: &mut WalkStack,
+    prefetch_leaf: &impl Fn(u32),
 ) -> Option<Entry> {
     // The lowest child left in `mask`, taken out of it.
     let take = |mask: &mut u32| {
@@ -614,6 +632,8 @@ fn enter<const ORDERED: bool, const W: usize>(
         // comparison instead of the sort.
         if far.count == 0 {
             simd::prefetch(&nodes[far.child as usize]);
+        } else {
+            prefetch_leaf(far.child);
         }
         stack.push(far);
         return Some(near);
@@ -635,6 +655,8 @@ fn enter<const ORDERED: bool, const W: usize>(
     for item in &hits[..h - 1] {
         if item.count == 0 {
             simd::prefetch(&nodes[item.child as usize]);
+        } else {
+            prefetch_leaf(item.child);
         }
         stack.push(*item);
     }
