@@ -226,7 +226,19 @@ impl<P: Primitives> Scene<P> {
     fn closest_general<C: RayCounter>(&self, ray: &Ray, counter: &mut C) -> Option<(u32, PrimHit)> {
         let mut best: Option<(u32, PrimHit)> = None;
         let mut tmax = ray.tmax();
-        if let Some(wide) = self.wide_blocks() {
+        if let Some(WideRef::W2(bvh)) = self.wide_blocks() {
+            if ray.is_valid() {
+                bvh.traverse_blocks_prefetching(
+                    ray,
+                    counter,
+                    &mut |first, count| {
+                        self.leaf_closest(ray, first, count, &mut tmax, &mut best);
+                        tmax
+                    },
+                    &|first| self.prims.prefetch_block(first),
+                );
+            }
+        } else if let Some(wide) = self.wide_blocks() {
             wide.traverse_blocks(ray, counter, &mut |first, count| {
                 self.leaf_closest(ray, first, count, &mut tmax, &mut best);
                 tmax

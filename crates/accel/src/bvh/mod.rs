@@ -334,10 +334,25 @@ impl Bvh {
         counter: &mut C,
         block: &mut impl FnMut(u32, u32) -> f32,
     ) {
+        self.traverse_blocks_prefetching(ray, counter, block, &|_| {});
+    }
+
+    /// [`Self::traverse_blocks`], calling `prefetch_leaf(first)` for each
+    /// leaf the walk pushes for later (the farther of two children
+    /// entered), as the wide walk does
+    /// ([`super::WideBvh::traverse_blocks_prefetching`]).
+    #[inline]
+    pub(crate) fn traverse_blocks_prefetching<C: RayCounter>(
+        &self,
+        ray: &Ray,
+        counter: &mut C,
+        block: &mut impl FnMut(u32, u32) -> f32,
+        prefetch_leaf: &impl Fn(u32),
+    ) {
         if self.depth() <= SHALLOW {
-            self.walk_blocks::<SHALLOW, C>(ray, counter, block);
+            self.walk_blocks::<SHALLOW, C>(ray, counter, block, prefetch_leaf);
         } else {
-            self.walk_blocks::<STACK_SIZE, C>(ray, counter, block);
+            self.walk_blocks::<STACK_SIZE, C>(ray, counter, block, prefetch_leaf);
         }
     }
 
@@ -349,6 +364,7 @@ impl Bvh {
         ray: &Ray,
         counter: &mut C,
         block: &mut impl FnMut(u32, u32) -> f32,
+        prefetch_leaf: &impl Fn(u32),
     ) {
         let Some(root) = self.pairs.first().map(|p| &p.0[0]) else {
             return;
@@ -390,6 +406,10 @@ impl Bvh {
                     } else {
                         (r, node.index, l0)
                     };
+                    let far_node = self.node(far);
+                    if far_node.is_leaf() {
+                        prefetch_leaf(far_node.index);
+                    }
                     stack[sp] = (far, far_entry);
                     sp += 1;
                     node = near;
