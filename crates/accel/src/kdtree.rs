@@ -255,7 +255,13 @@ impl KdTree {
         let Some((t0, t1)) = self.bounds.intersect_ray(ray, ray.tmax()) else {
             return;
         };
-        let (o, d, inv) = (ray.origin(), ray.dir(), ray.inv_dir());
+        // Arrays, not `Vec3`s: `Vec3`'s `Index` is a `match` on the axis,
+        // which changes from node to node and mispredicted.
+        let (o, d, inv) = (
+            ray.origin().to_array(),
+            ray.dir().to_array(),
+            ray.inv_dir().to_array(),
+        );
         let mut tmax = ray.tmax();
         let mut stack = [(0u32, 0.0f32, 0.0f32); MAX_DEPTH];
         let mut sp = 0usize;
@@ -280,11 +286,11 @@ impl KdTree {
                     let t = (split - o[axis]) * inv[axis];
                     // Pad the crossing so that rounding never skips a side.
                     let pad = t.abs() * 1e-6 + f32::MIN_POSITIVE;
-                    let (first, second) = if d[axis] > 0.0 {
-                        (below, above)
-                    } else {
-                        (above, below)
-                    };
+                    // Which side the ray meets first: a conditional move,
+                    // as the axis changes from node to node.
+                    let fwd = d[axis] > 0.0;
+                    let first = std::hint::select_unpredictable(fwd, below, above);
+                    let second = std::hint::select_unpredictable(fwd, above, below);
                     if t - pad > n1 {
                         node = first;
                     } else if t + pad < n0 {

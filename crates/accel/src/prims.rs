@@ -522,8 +522,12 @@ impl Primitives for Triangles {
             for (k, &i) in ids.iter().enumerate() {
                 let i = i as usize;
                 assert!(i < self.len);
+                // The triangle's 9 coordinates, 8 floats apart: one slice,
+                // one bounds check.
+                let at = slot_at(i, 0);
+                let coords = &self.data[at..=at + 8 * GROUP_SLOTS];
                 for (r, row) in rows[..9].iter_mut().enumerate() {
-                    row[k] = self.data[slot_at(i, r)];
+                    row[k] = coords[r * GROUP_SLOTS];
                 }
             }
             let block = crate::simd::triangles8(rows.as_flattened(), 0, ids.len(), ray, tmax);
