@@ -14,7 +14,9 @@
 //! its own ray would cull, and the closest hit (least `t`, ties to the least
 //! index) is the one the single-ray traversal returns, bit for bit. The
 //! loops below are plain Rust over eight lanes, which the compiler turns
-//! into AVX under [`crate::simd::with_avx2`] and into SSE elsewhere.
+//! into AVX under [`crate::simd::with_avx2`] and into SSE elsewhere; the
+//! triangle test has an AVX2 kernel of its own (`simd::packet_lanes_avx`,
+//! the loop [`lanes_portable`] its fallback).
 
 use crate::{BlockHits, PrimHit};
 use raymesh_geometry::{
