@@ -79,7 +79,12 @@ impl Packet8 {
         // this about 180 instructions a ray, a fifth of a packet's trace.
         let mut same = true;
         for r in rays {
-            same &= r.is_valid() & (r.octant() == oct) & (r.shear().1 == k);
+            // The axis orders compared axis by axis: compared as arrays,
+            // they were stored and reloaded as one vector, a load the
+            // CPU could not forward from the three stores (a stall).
+            let rk = r.shear().1;
+            same &= r.is_valid() & (r.octant() == oct);
+            same &= (rk[0] == k[0]) & (rk[1] == k[1]) & (rk[2] == k[2]);
         }
         if !same {
             return None;
