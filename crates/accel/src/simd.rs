@@ -124,11 +124,12 @@ pub(crate) fn prefetch_at<T>(v: &[T], i: usize) {
 #[inline(always)]
 pub(crate) fn truncate3(f: raymesh_geometry::Vec3A, last: f32, simd: bool) -> u32 {
     debug_assert!(last < 256.0);
-    // `max` returns its second operand, 0, when `f` is NaN (SSE's
-    // `maxps`, or glam's portable `f32::max`, which ignores NaN).
-    let f = f
-        .max(raymesh_geometry::Vec3A::ZERO)
-        .min(raymesh_geometry::Vec3A::splat(last));
+    // `max_keep` returns its second operand, 0, when `f` is NaN (SSE's
+    // `maxps` everywhere; glam's `max` would return NaN on aarch64).
+    let f = crate::bvh::min_keep(
+        crate::bvh::max_keep(f, raymesh_geometry::Vec3A::ZERO),
+        raymesh_geometry::Vec3A::splat(last),
+    );
     #[cfg(target_arch = "x86_64")]
     if simd {
         return truncate3_sse2(f);

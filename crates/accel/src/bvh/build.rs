@@ -203,6 +203,38 @@ impl std::ops::IndexMut<usize> for Region<'_> {
     }
 }
 
+/// `a < b ? a : b` in each lane: SSE's `minps`, which returns `b` when
+/// either is NaN. The builders rely on it: a NaN corner, put first, leaves
+/// the box it is added to as it was. glam's `min` is `minps` on x86-64,
+/// but NEON's `vminq_f32` on aarch64, which returns NaN: there a NaN
+/// corner made a bin's box NaN, so rays never entered it (a spatial-split
+/// build of triangles with NaN and infinite corners failed its
+/// validation, run under qemu).
+#[inline(always)]
+pub(crate) fn min_keep(a: Vec3A, b: Vec3A) -> Vec3A {
+    #[cfg(target_arch = "x86_64")]
+    {
+        a.min(b)
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        Vec3A::select(a.cmplt(b), a, b)
+    }
+}
+
+/// `a > b ? a : b` in each lane: SSE's `maxps` (see [`min_keep`]).
+#[inline(always)]
+pub(crate) fn max_keep(a: Vec3A, b: Vec3A) -> Vec3A {
+    #[cfg(target_arch = "x86_64")]
+    {
+        a.max(b)
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        Vec3A::select(a.cmpgt(b), a, b)
+    }
+}
+
 /// A bin of the binned builder: the box of its primitives (in SIMD
 /// registers' layout) and their number.
 #[derive(Clone, Copy, Debug)]
@@ -220,20 +252,20 @@ impl Bin {
     };
 
     /// Adds a primitive's box. The primitive's corner comes first in each
-    /// `min`/`max`, so that a NaN there leaves the bin as it was (SSE's
-    /// min and max return their second operand when either is NaN).
+    /// `min`/`max`, so that a NaN there leaves the bin as it was
+    /// ([`min_keep`] returns its second operand when either is NaN).
     #[inline(always)]
     fn add(&mut self, min: Vec3A, max: Vec3A) {
-        self.min = min.min(self.min);
-        self.max = max.max(self.max);
+        self.min = min_keep(min, self.min);
+        self.max = max_keep(max, self.max);
         self.count += 1;
     }
 
     #[inline(always)]
     fn merge(self, o: Self) -> Self {
         Self {
-            min: o.min.min(self.min),
-            max: o.max.max(self.max),
+            min: min_keep(o.min, self.min),
+            max: max_keep(o.max, self.max),
             count: self.count + o.count,
         }
     }
@@ -241,7 +273,7 @@ impl Bin {
     /// Half the surface area of the box, as [`Aabb::half_area`].
     #[inline(always)]
     fn half_area(&self) -> f32 {
-        let e = (self.max - self.min).max(Vec3A::ZERO);
+        let e = max_keep(self.max - self.min, Vec3A::ZERO);
         e.x * e.y + e.y * e.z + e.z * e.x
     }
 }
@@ -419,8 +451,8 @@ impl Ctx<'_> {
             for r in ids {
                 let (a, b) = r.corners();
                 let c = (a + b) * 0.5;
-                (lo, hi) = (a.min(lo), b.max(hi));
-                (clo, chi) = (c.min(clo), c.max(chi));
+                (lo, hi) = (min_keep(a, lo), max_keep(b, hi));
+                (clo, chi) = (min_keep(c, clo), max_keep(c, chi));
             }
             let aabb = |lo: Vec3A, hi: Vec3A| Aabb::new(lo.into(), hi.into());
             (aabb(lo, hi), aabb(clo, chi))

@@ -8,6 +8,7 @@
 mod build;
 mod wide;
 
+pub(crate) use build::{max_keep, min_keep};
 pub use build::{BvhBuilder, Clip};
 #[cfg(test)]
 pub(crate) use wide::slab_scalar;
