@@ -515,10 +515,11 @@ impl Primitives for Triangles {
         let ids = &ids[..ids.len().min(BLOCK)];
         #[cfg(target_arch = "x86_64")]
         if crate::simd::has_avx2() {
-            // The block gathered as one group, and a zeroed one after it:
-            // row `r`'s lane `k` is triangle `ids[k]`'s coordinate `r`
-            // (lanes past the list stay zero and are ignored by the kernel).
-            let mut rows = [[0.0f32; GROUP_SLOTS]; 18];
+            // The block gathered as one group: row `r`'s lane `k` is
+            // triangle `ids[k]`'s coordinate `r` (lanes past the list stay
+            // zero and are ignored by the kernel). From lane 0 the block
+            // lies in the group, and its loads end with row 8.
+            let mut rows = [[0.0f32; GROUP_SLOTS]; 9];
             for (k, &i) in ids.iter().enumerate() {
                 let i = i as usize;
                 assert!(i < self.len);
@@ -526,7 +527,7 @@ impl Primitives for Triangles {
                 // one bounds check.
                 let at = slot_at(i, 0);
                 let coords = &self.data[at..=at + 8 * GROUP_SLOTS];
-                for (r, row) in rows[..9].iter_mut().enumerate() {
+                for (r, row) in rows.iter_mut().enumerate() {
                     row[k] = coords[r * GROUP_SLOTS];
                 }
             }
