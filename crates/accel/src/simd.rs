@@ -195,14 +195,14 @@ unsafe fn slab8_avx(node: *const f32, r: &BoxRay, bound: f32, t: *mut f32) -> u3
     let mut lo = [_mm256_setzero_ps(); 3];
     let mut hi = [_mm256_setzero_ps(); 3];
     for a in 0..3 {
-        // Rows of the node's 8, masked to 0..8: a row index can never
+        // Row starts masked to multiples of 8 below 64: a row can never
         // leave the node.
-        let (near, far) = (r.near[a] & 7, r.far[a] & 7);
+        let (near, far) = (r.near[a] & 0x38, r.far[a] & 0x38);
         let o = _mm256_set1_ps(r.origin[a]);
         let inv = _mm256_set1_ps(r.inv_dir[a]);
-        lo[a] = _mm256_mul_ps(_mm256_sub_ps(_mm256_loadu_ps(node.add(8 * near)), o), inv);
+        lo[a] = _mm256_mul_ps(_mm256_sub_ps(_mm256_loadu_ps(node.add(near)), o), inv);
         hi[a] = _mm256_mul_ps(
-            _mm256_mul_ps(_mm256_sub_ps(_mm256_loadu_ps(node.add(8 * far)), o), inv),
+            _mm256_mul_ps(_mm256_sub_ps(_mm256_loadu_ps(node.add(far)), o), inv),
             exit_pad,
         );
     }
