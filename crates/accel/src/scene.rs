@@ -263,9 +263,9 @@ impl<P: Primitives> Scene<P> {
 
     /// The closest hit over an 8-wide BVH on a CPU with AVX2 (the `Avx2`
     /// proof), for [`Self::intersect_counted`]. The walk runs compiled for
-    /// AVX2 ([`Bvh8::traverse_blocks`]), so the block test
-    /// ([`Primitives::intersect_block_pre`]) inlines into it, with the
-    /// ray's constants computed once.
+    /// AVX2 (under [`Avx2::run`], [`Bvh8::traverse_blocks_avx2`]), so the
+    /// block test ([`Primitives::intersect_block_pre`]) inlines into it,
+    /// with the ray's constants computed once, in the same AVX2 region.
     ///
     /// The kernel inlines only while everything between `with_avx2` and
     /// it is `#[inline(always)]` or a closure called from one place: the
@@ -281,24 +281,27 @@ impl<P: Primitives> Scene<P> {
         ray: &Ray,
         counter: &mut C,
     ) -> Option<(u32, PrimHit)> {
-        let mut best = None;
         if !ray.is_valid() {
             return None;
         }
-        let mut tmax = ray.tmax();
-        let pre = self.prims.block_ray(ray);
-        bvh.traverse_blocks_prefetching::<true, C>(
-            ray,
-            counter,
-            &mut |first, count| {
-                self.leaf_closest_by(first, count, &mut tmax, &mut best, |s, n, t| {
-                    self.prims.intersect_block_pre(avx, &pre, s, n, ray, t)
-                });
-                tmax
-            },
-            &|first| self.prims.prefetch_block(first),
-        );
-        best
+        avx.run(|| {
+            let mut best = None;
+            let mut tmax = ray.tmax();
+            let pre = self.prims.block_ray(ray);
+            bvh.traverse_blocks_avx2::<true, C>(
+                avx,
+                ray,
+                counter,
+                &mut |first, count| {
+                    self.leaf_closest_by(first, count, &mut tmax, &mut best, |s, n, t| {
+                        self.prims.intersect_block_pre(avx, &pre, s, n, ray, t)
+                    });
+                    tmax
+                },
+                &|first| self.prims.prefetch_block(first),
+            );
+            best
+        })
     }
 
     /// [`Self::closest_avx2`] for any-hit queries, for
@@ -311,22 +314,30 @@ impl<P: Primitives> Scene<P> {
         ray: &Ray,
         counter: &mut C,
     ) -> Option<(u32, PrimHit)> {
-        let mut found = None;
         if !ray.is_valid() {
             return None;
         }
-        let pre = self.prims.block_ray(ray);
-        bvh.traverse_blocks_unordered(ray, counter, &mut |first, count| {
-            found = self.leaf_any_by(first, count, ray.tmax(), |s, n, t| {
-                self.prims.intersect_block_pre(avx, &pre, s, n, ray, t)
-            });
-            if found.is_some() {
-                f32::NEG_INFINITY
-            } else {
-                ray.tmax()
-            }
-        });
-        found
+        avx.run(|| {
+            let mut found = None;
+            let pre = self.prims.block_ray(ray);
+            bvh.traverse_blocks_avx2::<false, C>(
+                avx,
+                ray,
+                counter,
+                &mut |first, count| {
+                    found = self.leaf_any_by(first, count, ray.tmax(), |s, n, t| {
+                        self.prims.intersect_block_pre(avx, &pre, s, n, ray, t)
+                    });
+                    if found.is_some() {
+                        f32::NEG_INFINITY
+                    } else {
+                        ray.tmax()
+                    }
+                },
+                &|_| {},
+            );
+            found
+        })
     }
 
     /// Takes hit `h` of primitive `prim` (with `h.t <= tmax`) as the

@@ -713,6 +713,21 @@ impl Avx2 {
     pub fn detect() -> Option<Self> {
         has_avx2().then_some(Self(()))
     }
+
+    /// Runs `f` compiled with AVX2 enabled ([`with_avx2`]), so that the
+    /// kernels and walks it inlines use 256-bit instructions and keep the
+    /// ray's constants in registers. (No proof is made on other CPUs.)
+    #[inline(always)]
+    pub(crate) fn run<R>(self, f: impl FnOnce() -> R) -> R {
+        #[cfg(target_arch = "x86_64")]
+        {
+            with_avx2(f)
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            f()
+        }
+    }
 }
 
 /// What the triangle kernel needs of a ray, computed once per ray instead
