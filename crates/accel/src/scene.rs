@@ -273,7 +273,7 @@ impl<P: Primitives> Scene<P> {
     /// closure from two, and there every intrinsic became a call (2.5
     /// times slower). A `bvh8` that slows down that much after an
     /// unrelated change is worth checking for that first.
-    #[inline(never)]
+    #[inline(always)]
     fn closest_avx2<C: RayCounter>(
         &self,
         bvh: &Bvh8,
@@ -306,7 +306,7 @@ impl<P: Primitives> Scene<P> {
 
     /// [`Self::closest_avx2`] for any-hit queries, for
     /// [`Self::any_hit_counted`].
-    #[inline(never)]
+    #[inline(always)]
     fn any_avx2<C: RayCounter>(
         &self,
         bvh: &Bvh8,

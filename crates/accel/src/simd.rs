@@ -714,14 +714,17 @@ impl Avx2 {
         has_avx2().then_some(Self(()))
     }
 
-    /// Runs `f` compiled with AVX2 enabled ([`with_avx2`]), so that the
-    /// kernels and walks it inlines use 256-bit instructions and keep the
-    /// ray's constants in registers. (No proof is made on other CPUs.)
+    /// Runs `f` compiled with AVX2 enabled (as [`with_avx2`] does, without
+    /// checking the CPU again), so that the kernels and walks it inlines
+    /// use 256-bit instructions and keep the ray's constants in registers.
+    /// (No proof is made on other CPUs.)
     #[inline(always)]
     pub(crate) fn run<R>(self, f: impl FnOnce() -> R) -> R {
         #[cfg(target_arch = "x86_64")]
         {
-            with_avx2(f)
+            // SAFETY: the proof exists, so `detect` (its only maker) found
+            // AVX2 on this CPU.
+            unsafe { run_avx2(f) }
         }
         #[cfg(not(target_arch = "x86_64"))]
         {
