@@ -20,6 +20,8 @@ pub mod bvh;
 mod grid;
 mod instance;
 mod kdtree;
+#[cfg(all(target_arch = "aarch64", target_feature = "neon"))]
+mod neon;
 mod packet;
 mod prims;
 mod scene;

@@ -229,7 +229,10 @@ fn intersect_each<P: Primitives + ?Sized>(
 /// A SIMD block test's result `(mask, redo, out)` completed: the lanes
 /// in `redo`, whose edge function rounded to exactly zero, take the
 /// scalar test's f64 path (lane `k` is primitive `prim(k)`).
-#[cfg(target_arch = "x86_64")]
+#[cfg(any(
+    target_arch = "x86_64",
+    all(target_arch = "aarch64", target_feature = "neon")
+))]
 #[inline(always)]
 fn redo_lanes<P: Primitives + ?Sized>(
     prims: &P,
@@ -364,6 +367,14 @@ pub struct Triangles {
     len: usize,
 }
 
+impl Triangles {
+    /// The grouped rows, for the kernels' tests.
+    #[cfg(all(test, target_arch = "aarch64", target_feature = "neon"))]
+    pub(crate) fn rows(&self) -> &[f32] {
+        &self.data
+    }
+}
+
 /// Where triangle `i`'s coordinate `r` lies in [`Triangles`]' data.
 #[inline(always)]
 fn slot_at(i: usize, r: usize) -> usize {
@@ -467,6 +478,11 @@ impl Primitives for Triangles {
         #[cfg(target_arch = "x86_64")]
         if crate::simd::has_avx2() {
             let block = crate::simd::triangles8(&self.data, first, count, ray, tmax);
+            return redo_lanes(self, |k| (first + k) as u32, block, ray, tmax);
+        }
+        #[cfg(all(target_arch = "aarch64", target_feature = "neon"))]
+        if crate::simd::simd_enabled() {
+            let block = crate::neon::triangles8(&self.data, first, count, ray, tmax);
             return redo_lanes(self, |k| (first + k) as u32, block, ray, tmax);
         }
         let mut out = BlockHits::default();

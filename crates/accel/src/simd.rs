@@ -965,7 +965,7 @@ unsafe fn triangles8_core(
 mod tests {
     use super::*;
     use crate::bvh::{slab_scalar, Node};
-    use crate::test_util::{hard_coord, hard_vec3};
+    use crate::test_util::{hard_coord, hard_vec3, lanes_match, lattice};
     use proptest::prelude::*;
     use raymesh_geometry::{Aabb, Ray, Vec3};
 
@@ -1054,30 +1054,6 @@ mod tests {
         }
     }
 
-    /// Checks a block test's lanes against the scalar test's hit of each
-    /// lane (`want(k)`): the same lanes hit, with the same bits of `t`,
-    /// `u` and `v`.
-    fn lanes_match(
-        mask: u32,
-        out: &crate::BlockHits,
-        want: impl Fn(usize) -> Option<raymesh_geometry::TriHit>,
-    ) -> Result<(), TestCaseError> {
-        for k in 0..8 {
-            let want = want(k);
-            prop_assert_eq!(mask >> k & 1 != 0, want.is_some(), "lane {}", k);
-            if let Some(w) = want {
-                let h = out.get(k);
-                prop_assert_eq!(
-                    (h.t.to_bits(), h.u.to_bits(), h.v.to_bits()),
-                    (w.t.to_bits(), w.u.to_bits(), w.v.to_bits()),
-                    "lane {}",
-                    k
-                );
-            }
-        }
-        Ok(())
-    }
-
     /// A `BlockRay` holds nothing of the triangles it was made with (the
     /// grouped rows lie alike for any number of triangles): made over one
     /// triangle, it finds the hits in a block of another set's.
@@ -1094,13 +1070,6 @@ mod tests {
             let (mask, hits) = many.intersect_block_pre(avx, &pre, first, 8, &ray, f32::INFINITY);
             assert_eq!((mask, hits.t), (0xff, [1.0; 8]), "block from {first}");
         }
-    }
-
-    /// Lattice coordinates make edge functions round to exactly zero
-    /// (rays through shared edges and vertices), which takes the f64 path.
-    fn lattice() -> impl Strategy<Value = Vec3> {
-        (-3i32..4, -3i32..4, -3i32..4)
-            .prop_map(|(x, y, z)| Vec3::new(x as f32, y as f32, z as f32) * 0.5)
     }
 
     proptest! {

@@ -56,3 +56,34 @@ pub(crate) fn hard_coord() -> impl Strategy<Value = f32> {
 pub(crate) fn hard_vec3() -> impl Strategy<Value = Vec3> {
     (hard_coord(), hard_coord(), hard_coord()).prop_map(|(x, y, z)| Vec3::new(x, y, z))
 }
+
+/// Lattice coordinates make edge functions round to exactly zero
+/// (rays through shared edges and vertices), which takes the f64 path.
+pub(crate) fn lattice() -> impl Strategy<Value = Vec3> {
+    (-3i32..4, -3i32..4, -3i32..4)
+        .prop_map(|(x, y, z)| Vec3::new(x as f32, y as f32, z as f32) * 0.5)
+}
+
+/// Checks a block test's lanes against the scalar test's hit of each
+/// lane (`want(k)`): the same lanes hit, with the same bits of `t`,
+/// `u` and `v`.
+pub(crate) fn lanes_match(
+    mask: u32,
+    out: &crate::BlockHits,
+    want: impl Fn(usize) -> Option<raymesh_geometry::TriHit>,
+) -> Result<(), TestCaseError> {
+    for k in 0..8 {
+        let want = want(k);
+        prop_assert_eq!(mask >> k & 1 != 0, want.is_some(), "lane {}", k);
+        if let Some(w) = want {
+            let h = out.get(k);
+            prop_assert_eq!(
+                (h.t.to_bits(), h.u.to_bits(), h.v.to_bits()),
+                (w.t.to_bits(), w.u.to_bits(), w.v.to_bits()),
+                "lane {}",
+                k
+            );
+        }
+    }
+    Ok(())
+}

@@ -48,7 +48,13 @@ impl<const W: usize> WideNode<W> {
     };
 
     /// A node with every slot empty.
-    #[cfg(all(test, target_arch = "x86_64"))]
+    #[cfg(all(
+        test,
+        any(
+            target_arch = "x86_64",
+            all(target_arch = "aarch64", target_feature = "neon")
+        )
+    ))]
     pub(crate) fn empty() -> Self {
         Self::EMPTY
     }
@@ -113,6 +119,13 @@ impl<const W: usize> WideNode<W> {
             return (mask, t);
         }
         (slab_scalar(self, ray, bound, &mut t), t)
+    }
+
+    /// The rows of lower and of upper bounds, by axis.
+    #[cfg(all(target_arch = "aarch64", target_feature = "neon"))]
+    #[inline(always)]
+    pub(crate) fn planes(&self) -> (&[[f32; W]; 3], &[[f32; W]; 3]) {
+        (&self.min, &self.max)
     }
 
     /// The rows of lower (`upper == false`) or upper bounds, by axis.
@@ -352,6 +365,11 @@ impl<const W: usize> WideBvh<W> {
             return simd::with_avx2(|| {
                 self.traverse_with::<ORDERED, C>(ray, counter, block, prefetch_leaf, simd::slab8)
             });
+        }
+        #[cfg(all(target_arch = "aarch64", target_feature = "neon"))]
+        if W == 8 && simd::simd_enabled() {
+            let test = crate::neon::slab8;
+            return self.traverse_with::<ORDERED, C>(ray, counter, block, prefetch_leaf, test);
         }
         self.traverse_with::<ORDERED, C>(ray, counter, block, prefetch_leaf, slab_scalar);
     }
