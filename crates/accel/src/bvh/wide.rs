@@ -107,8 +107,9 @@ impl<const W: usize> WideNode<W> {
     /// One traversal step: the slab test of all `W` child boxes against a
     /// ray, clipped to `[ray's tmin, tmax]`. Returns a bit per child the ray
     /// enters and each child's entry distance. Uses the AVX2 kernel for
-    /// 8-wide nodes where the CPU has it and [`crate::set_simd_enabled`]
-    /// allows it, the portable loop otherwise (bit-identical results).
+    /// 8-wide nodes where the CPU has it (the NEON one on aarch64) and
+    /// [`crate::set_simd_enabled`] allows it, the portable loop otherwise
+    /// (bit-identical results).
     #[must_use]
     pub fn slab(&self, ray: &BoxRay, tmax: f32) -> (u32, [f32; W]) {
         let mut t = [0.0f32; W];
@@ -117,6 +118,10 @@ impl<const W: usize> WideNode<W> {
         if W == 8 && simd::has_avx2() {
             let mask = simd::with_avx2(|| simd::slab8(self, ray, bound, &mut t));
             return (mask, t);
+        }
+        #[cfg(all(target_arch = "aarch64", target_feature = "neon"))]
+        if W == 8 && simd::simd_enabled() {
+            return (crate::neon::slab8(self, ray, bound, &mut t), t);
         }
         (slab_scalar(self, ray, bound, &mut t), t)
     }
@@ -534,6 +539,11 @@ impl<const W: usize> WideBvh<W> {
                     simd::slab8(n, r, bound, t)
                 });
             });
+        }
+        #[cfg(all(target_arch = "aarch64", target_feature = "neon"))]
+        if W == 8 && simd::simd_enabled() {
+            let test = crate::neon::slab8;
+            return self.stream_sized::<ORDERED>(rays, leaf, &prefetch_leaf, test);
         }
         self.stream_sized::<ORDERED>(rays, leaf, &prefetch_leaf, |n, r, bound, t| {
             slab_scalar(n, r, bound, t)
