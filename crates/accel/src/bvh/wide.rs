@@ -376,7 +376,11 @@ impl<const W: usize> WideBvh<W> {
             let test = crate::neon::slab8;
             return self.traverse_with::<ORDERED, C>(ray, counter, block, prefetch_leaf, test);
         }
-        self.traverse_with::<ORDERED, C>(ray, counter, block, prefetch_leaf, slab_scalar);
+        // A closure, not the function itself: passed as a function item,
+        // it became a call per node (LLVM did not inline its `Fn` shim).
+        let test =
+            |n: &WideNode<W>, r: &BoxRay, bound, t: &mut [f32; W]| slab_scalar(n, r, bound, t);
+        self.traverse_with::<ORDERED, C>(ray, counter, block, prefetch_leaf, test);
     }
 
     /// The traversal loop, generic over the node test (`test(node, ray,
