@@ -252,11 +252,10 @@ pub(crate) fn triangles8(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bvh::slab_scalar;
-    use crate::test_util::{hard_coord, hard_vec3, lanes_match, lattice};
+    use crate::test_util::{hard_coord, hard_vec3, lanes_match, lattice, node_kernel_matches};
     use crate::{Primitives, Triangles};
     use proptest::prelude::*;
-    use raymesh_geometry::{intersect_triangle, Aabb, Vec3};
+    use raymesh_geometry::{intersect_triangle, Vec3};
 
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(4000))]
@@ -269,22 +268,7 @@ mod tests {
             o in hard_vec3(), d in hard_vec3(),
             tmin in hard_coord(), bound in hard_coord(),
         ) {
-            let mut node = WideNode::<8>::empty();
-            for (i, (a, b)) in corners.iter().enumerate() {
-                if used >> i & 1 != 0 {
-                    node.set_box(i, Aabb::new(a.min(*b), a.max(*b)));
-                }
-            }
-            let ray = Ray::new(o, d, tmin.min(0.0), f32::INFINITY);
-            let mut r = BoxRay::new(&ray);
-            r.tmin = tmin;
-            let (mut ta, mut tb) = ([0.0f32; 8], [0.0f32; 8]);
-            let ma = slab8(&node, &r, bound, &mut ta);
-            let mb = slab_scalar(&node, &r, bound, &mut tb);
-            prop_assert_eq!(ma, mb);
-            for i in 0..8 {
-                prop_assert_eq!(ta[i].to_bits(), tb[i].to_bits(), "lane {}", i);
-            }
+            node_kernel_matches(slab8, &corners, used, (o, d, tmin, bound))?;
         }
     }
 

@@ -964,8 +964,8 @@ unsafe fn triangles8_core(
 #[cfg(all(test, target_arch = "x86_64"))]
 mod tests {
     use super::*;
-    use crate::bvh::{slab_scalar, Node};
-    use crate::test_util::{hard_coord, hard_vec3, lanes_match, lattice};
+    use crate::bvh::Node;
+    use crate::test_util::{hard_coord, hard_vec3, lanes_match, lattice, node_kernel_matches};
     use proptest::prelude::*;
     use raymesh_geometry::{Aabb, Ray, Vec3};
 
@@ -980,22 +980,10 @@ mod tests {
             tmin in hard_coord(), bound in hard_coord(),
         ) {
             prop_assume!(cpu_has_avx2());
-            let mut node = WideNode::<8>::empty();
-            for (i, (a, b)) in corners.iter().enumerate() {
-                if used >> i & 1 != 0 {
-                    node.set_box(i, Aabb::new(a.min(*b), a.max(*b)));
-                }
-            }
-            let ray = Ray::new(o, d, tmin.min(0.0), f32::INFINITY);
-            let mut r = BoxRay::new(&ray);
-            r.tmin = tmin;
-            let (mut ta, mut tb) = ([0.0f32; 8], [0.0f32; 8]);
-            let ma = with_avx2(|| slab8(&node, &r, bound, &mut ta));
-            let mb = slab_scalar(&node, &r, bound, &mut tb);
-            prop_assert_eq!(ma, mb);
-            for i in 0..8 {
-                prop_assert_eq!(ta[i].to_bits(), tb[i].to_bits(), "lane {}", i);
-            }
+            let avx = |n: &WideNode<8>, r: &BoxRay, bound, t: &mut [f32; 8]| {
+                with_avx2(|| slab8(n, r, bound, t))
+            };
+            node_kernel_matches(avx, &corners, used, (o, d, tmin, bound))?;
         }
     }
 
