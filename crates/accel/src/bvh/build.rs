@@ -795,7 +795,16 @@ impl Ctx<'_> {
         // (clamped to the last bin, at or past any boundary), and a
         // NaN `f` goes to bin 0, on the left, as `!(f >= b)` does.
         let (lo, s, b) = (binning.min[axis], binning.scale[axis], boundary as f32);
-        par_partition(ids, |r| !((r.centroid()[axis] - lo) * s >= b))
+        // One partition loop per axis, each reading its axis's two corner
+        // coordinates as fields: indexing the centroid by a variable axis
+        // made the whole box, its centroid and a branchy lane choice per
+        // primitive. The same centroid, `0.5 * (min + max)`, bit for bit.
+        let left = |min: f32, max: f32| !((0.5 * (min + max) - lo) * s >= b);
+        match axis {
+            0 => par_partition(ids, |r| left(r.lo.x, r.hi.x)),
+            1 => par_partition(ids, |r| left(r.lo.y, r.hi.y)),
+            _ => par_partition(ids, |r| left(r.lo.z, r.hi.z)),
+        }
     }
 
     /// Counts `ids` into the first `nb` bins of each axis of `bins` (the
