@@ -231,7 +231,30 @@ impl<P: Primitives> Scene<P> {
         // through `WideRef::traverse_blocks` for every width instead cost
         // the binary walk 37 instructions a ray and 1% (bunny00 random).
         if let Some(WideRef::W2(bvh)) = self.wide_blocks() {
-            if ray.is_valid() {
+            if !ray.is_valid() {
+                return None;
+            }
+            if let Some(avx) = Avx2::detect() {
+                // Each leaf in an AVX2 region of its own, the block test
+                // inlined there and its ray constants computed once for
+                // the ray; the walk itself stays portable code (compiled
+                // for AVX2 with the kernel inlined, it took more
+                // instructions: its plane indices spilled).
+                let pre = self.prims.block_ray(ray);
+                bvh.traverse_blocks_prefetching(
+                    ray,
+                    counter,
+                    &mut |first, count| {
+                        avx.run(|| {
+                            self.leaf_closest_by(first, count, &mut tmax, &mut best, |s, n, t| {
+                                self.prims.intersect_block_pre(avx, &pre, s, n, ray, t)
+                            })
+                        });
+                        tmax
+                    },
+                    &|first| self.prims.prefetch_block(first),
+                );
+            } else {
                 bvh.traverse_blocks_prefetching(
                     ray,
                     counter,
