@@ -914,20 +914,13 @@ unsafe fn triangles8_core(
             _mm256_cmp_ps::<_CMP_EQ_OQ>(w, zero),
         ),
     );
-    let any_neg = _mm256_or_ps(
-        _mm256_cmp_ps::<_CMP_LT_OQ>(u, zero),
-        _mm256_or_ps(
-            _mm256_cmp_ps::<_CMP_LT_OQ>(v, zero),
-            _mm256_cmp_ps::<_CMP_LT_OQ>(w, zero),
-        ),
-    );
-    let any_pos = _mm256_or_ps(
-        _mm256_cmp_ps::<_CMP_GT_OQ>(u, zero),
-        _mm256_or_ps(
-            _mm256_cmp_ps::<_CMP_GT_OQ>(v, zero),
-            _mm256_cmp_ps::<_CMP_GT_OQ>(w, zero),
-        ),
-    );
+    // Edge functions of both signs, as the sign bit of each lane: `u`'s
+    // sign bit differs from `v`'s or `w`'s. It stands for the scalar
+    // test's `(u < 0 || v < 0 || w < 0) && (u > 0 || v > 0 || w > 0)`
+    // wherever the result is read: a lane with a zero among them is
+    // redone in f64 (`redo`), and one with a NaN has a NaN `det`, which
+    // fails below whatever this says. Three operations instead of eleven.
+    let mixed = _mm256_or_ps(_mm256_xor_ps(u, v), _mm256_xor_ps(u, w));
     let det = _mm256_add_ps(_mm256_add_ps(u, v), w);
     let t_scaled = _mm256_add_ps(
         _mm256_add_ps(_mm256_mul_ps(u, az), _mm256_mul_ps(v, bz)),
@@ -937,8 +930,10 @@ unsafe fn triangles8_core(
     let t = _mm256_mul_ps(t_scaled, inv_det);
     // Inside (all edge functions of one sign), a plane that is not edge-on
     // (`det` neither 0 nor NaN), and `t` in the interval (NaN fails).
+    // (`movemask` reads the sign bits only: `mixed`'s are the ones that
+    // matter, the comparisons' lanes are all ones or all zeros.)
     let ok = _mm256_andnot_ps(
-        _mm256_and_ps(any_neg, any_pos),
+        mixed,
         _mm256_and_ps(
             _mm256_cmp_ps::<_CMP_NEQ_OQ>(det, zero),
             _mm256_and_ps(
