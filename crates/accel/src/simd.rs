@@ -928,18 +928,18 @@ unsafe fn triangles8_core(
     );
     let inv_det = _mm256_div_ps(_mm256_set1_ps(1.0), det);
     let t = _mm256_mul_ps(t_scaled, inv_det);
-    // Inside (all edge functions of one sign), a plane that is not edge-on
-    // (`det` neither 0 nor NaN), and `t` in the interval (NaN fails).
-    // (`movemask` reads the sign bits only: `mixed`'s are the ones that
-    // matter, the comparisons' lanes are all ones or all zeros.)
+    // Inside (all edge functions of one sign) and `t` in the interval (NaN
+    // fails). The scalar test's check that the plane is not edge-on (`det`
+    // neither 0 nor NaN) needs no instruction of its own here: where all
+    // three edge functions are of one sign and none is zero (zeros are
+    // redone), `det`, their sum, is zero nowhere, and where it is NaN so
+    // is `t`. (`movemask` reads the sign bits only: `mixed`'s are the
+    // ones that matter, the comparisons' lanes are all ones or zeros.)
     let ok = _mm256_andnot_ps(
         mixed,
         _mm256_and_ps(
-            _mm256_cmp_ps::<_CMP_NEQ_OQ>(det, zero),
-            _mm256_and_ps(
-                _mm256_cmp_ps::<_CMP_GE_OQ>(t, _mm256_set1_ps(tmin)),
-                _mm256_cmp_ps::<_CMP_LE_OQ>(t, _mm256_set1_ps(tmax)),
-            ),
+            _mm256_cmp_ps::<_CMP_GE_OQ>(t, _mm256_set1_ps(tmin)),
+            _mm256_cmp_ps::<_CMP_LE_OQ>(t, _mm256_set1_ps(tmax)),
         ),
     );
     // The registers as they are: `__m256` and `[f32; 8]` have the same
