@@ -663,9 +663,10 @@ fn block_reach(span: usize) -> usize {
 /// slots `first..first + count` of rows grouped as [`crate::Triangles`]
 /// lays them out ([`block_at`]); lanes past `count` are ignored. Returns
 /// the mask of lanes hit (their `t`, `u`, `v` written to `out`) and the
-/// mask of lanes whose edge function rounded to exactly zero: those need
-/// the scalar test's f64 path, and are not in the hit mask. Panics if a
-/// row would be read past `data` or the CPU lacks AVX2.
+/// mask of lanes left for the scalar test's f64 path, which is empty: the
+/// kernel redoes a lane's edge functions in f64 itself where one rounded
+/// to exactly zero (the NEON kernel leaves them to the caller). Panics
+/// if a row would be read past `data` or the CPU lacks AVX2.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 pub(crate) fn triangles8(
@@ -837,7 +838,10 @@ unsafe fn triangles8_avx(
 
 /// The kernel itself, inlined into its caller: called from code compiled
 /// for AVX2 (`triangles8_avx`, or a traversal under `with_avx2`) its
-/// intrinsics inline too.
+/// intrinsics inline too. Lanes with an edge function of exactly zero
+/// are redone in f64 inside it, as the scalar test redoes them, so that
+/// it hands nothing back to redo (and the walks it inlines into make no
+/// call for it).
 ///
 /// The ray comes as its shear constants, its origin with the axes
 /// permuted, and `tmin`; row `r` of the 9 (corner `r / 3`, permuted axis
@@ -907,20 +911,82 @@ unsafe fn triangles8_core(
     let v = _mm256_sub_ps(_mm256_mul_ps(ax, cy), _mm256_mul_ps(ay, cx));
     let w = _mm256_sub_ps(_mm256_mul_ps(bx, ay), _mm256_mul_ps(by, ax));
     let zero = _mm256_setzero_ps();
-    let redo = _mm256_or_ps(
+    let flat = _mm256_or_ps(
         _mm256_cmp_ps::<_CMP_EQ_OQ>(u, zero),
         _mm256_or_ps(
             _mm256_cmp_ps::<_CMP_EQ_OQ>(v, zero),
             _mm256_cmp_ps::<_CMP_EQ_OQ>(w, zero),
         ),
     );
-    // Edge functions of both signs, as the sign bit of each lane: `u`'s
-    // sign bit differs from `v`'s or `w`'s. It stands for the scalar
-    // test's `(u < 0 || v < 0 || w < 0) && (u > 0 || v > 0 || w > 0)`
-    // wherever the result is read: a lane with a zero among them is
-    // redone in f64 (`redo`), and one with a NaN has a NaN `det`, which
-    // fails below whatever this says. Three operations instead of eleven.
-    let mixed = _mm256_or_ps(_mm256_xor_ps(u, v), _mm256_xor_ps(u, w));
+    // `off`: lanes that miss whatever their `t`, in their sign bits.
+    let (u, v, w, off) = if _mm256_movemask_ps(flat) == 0 {
+        // No edge function is zero: they are of both signs where `u`'s
+        // sign bit differs from `v`'s or `w`'s (three operations where
+        // the scalar test's comparisons take eleven). Its check that the
+        // plane is not edge-on (`det` neither 0 nor NaN) needs none here:
+        // the sum of three nonzero edge functions of one sign is never
+        // zero, and where it is NaN so is `t`, which the interval test
+        // below rejects.
+        (
+            u,
+            v,
+            w,
+            _mm256_or_ps(_mm256_xor_ps(u, v), _mm256_xor_ps(u, w)),
+        )
+    } else {
+        // A lane with a zero edge function (a ray through an edge or a
+        // vertex, or past a sliver) has all three redone in f64, as the
+        // scalar test does, here and not by a call: a call anywhere in a
+        // walk's loop makes the walk keep the ray's constants in memory
+        // around it (bunny00 random rays, bvh8: 29 instructions a ray).
+        // Then the scalar test's comparisons, a zero being of neither
+        // sign. Its check for an edge-on plane needs nothing here either:
+        // edge functions of one sign or zero sum to zero only when all
+        // three are zero, and then `t` is `0 * inf` or NaN, a NaN.
+        // `p * q - r * s` in f64, four lanes at a time (macros, not
+        // closures: see `load`).
+        macro_rules! edge {
+            ($p:expr, $q:expr, $r:expr, $s:expr) => {{
+                macro_rules! half {
+                    ($part:ident) => {
+                        _mm256_cvtpd_ps(_mm256_sub_pd(
+                            _mm256_mul_pd(_mm256_cvtps_pd($part!($p)), _mm256_cvtps_pd($part!($q))),
+                            _mm256_mul_pd(_mm256_cvtps_pd($part!($r)), _mm256_cvtps_pd($part!($s))),
+                        ))
+                    };
+                }
+                macro_rules! lo {
+                    ($x:expr) => {
+                        _mm256_castps256_ps128($x)
+                    };
+                }
+                macro_rules! hi {
+                    ($x:expr) => {
+                        _mm256_extractf128_ps::<1>($x)
+                    };
+                }
+                _mm256_set_m128(half!(hi), half!(lo))
+            }};
+        }
+        let u = _mm256_blendv_ps(u, edge!(cx, by, cy, bx), flat);
+        let v = _mm256_blendv_ps(v, edge!(ax, cy, ay, cx), flat);
+        let w = _mm256_blendv_ps(w, edge!(bx, ay, by, ax), flat);
+        let any_neg = _mm256_or_ps(
+            _mm256_cmp_ps::<_CMP_LT_OQ>(u, zero),
+            _mm256_or_ps(
+                _mm256_cmp_ps::<_CMP_LT_OQ>(v, zero),
+                _mm256_cmp_ps::<_CMP_LT_OQ>(w, zero),
+            ),
+        );
+        let any_pos = _mm256_or_ps(
+            _mm256_cmp_ps::<_CMP_GT_OQ>(u, zero),
+            _mm256_or_ps(
+                _mm256_cmp_ps::<_CMP_GT_OQ>(v, zero),
+                _mm256_cmp_ps::<_CMP_GT_OQ>(w, zero),
+            ),
+        );
+        (u, v, w, _mm256_and_ps(any_neg, any_pos))
+    };
     let det = _mm256_add_ps(_mm256_add_ps(u, v), w);
     let t_scaled = _mm256_add_ps(
         _mm256_add_ps(_mm256_mul_ps(u, az), _mm256_mul_ps(v, bz)),
@@ -928,15 +994,11 @@ unsafe fn triangles8_core(
     );
     let inv_det = _mm256_div_ps(_mm256_set1_ps(1.0), det);
     let t = _mm256_mul_ps(t_scaled, inv_det);
-    // Inside (all edge functions of one sign) and `t` in the interval (NaN
-    // fails). The scalar test's check that the plane is not edge-on (`det`
-    // neither 0 nor NaN) needs no instruction of its own here: where all
-    // three edge functions are of one sign and none is zero (zeros are
-    // redone), `det`, their sum, is zero nowhere, and where it is NaN so
-    // is `t`. (`movemask` reads the sign bits only: `mixed`'s are the
-    // ones that matter, the comparisons' lanes are all ones or zeros.)
+    // `t` in the interval (NaN fails) where nothing else rules the lane
+    // out. (`movemask` reads the sign bits only: `off`'s are the ones
+    // that matter, the comparisons' lanes are all ones or all zeros.)
     let ok = _mm256_andnot_ps(
-        mixed,
+        off,
         _mm256_and_ps(
             _mm256_cmp_ps::<_CMP_GE_OQ>(t, _mm256_set1_ps(tmin)),
             _mm256_cmp_ps::<_CMP_LE_OQ>(t, _mm256_set1_ps(tmax)),
@@ -945,9 +1007,10 @@ unsafe fn triangles8_core(
     // The registers as they are: `__m256` and `[f32; 8]` have the same
     // size, and every bit pattern is a valid float.
     let lanes = |x: __m256| std::mem::transmute::<__m256, [f32; 8]>(x);
+    // Nothing is left for the caller to redo.
     (
         _mm256_movemask_ps(ok) as u32,
-        _mm256_movemask_ps(redo) as u32,
+        0,
         BlockHits {
             t: lanes(t),
             u: lanes(_mm256_mul_ps(v, inv_det)),
@@ -1034,6 +1097,66 @@ mod tests {
             prop_assert_eq!(truncate3_scalar(clamped), want);
             prop_assert_eq!(truncate3(f, last, true), want);
             prop_assert_eq!(truncate3(f, last, false), want);
+        }
+    }
+
+    /// A triangle whose edge function `u` is zero in f32 and negative in
+    /// f64, where `v` and `w` are positive: the f32 test alone would call
+    /// it a hit, the scalar test (redoing the three in f64) a miss. The
+    /// ray runs along +z through the origin; the sheared corners are the
+    /// corners' x and y. `(1 + 2^-12)^2` rounds to `1 + 2^-11` in f32.
+    fn f64_only_miss() -> [Vec3; 3] {
+        let (e, e2) = (2f32.powi(-12), 2f32.powi(-11));
+        [
+            Vec3::new(-1.0, 1.0, 0.0),
+            Vec3::new(1.0, 1.0 + e, 0.0),
+            Vec3::new(-(1.0 + e), -(1.0 + e2), 0.0),
+        ]
+    }
+
+    /// The block kernels redo a zero edge function in f64 as the scalar
+    /// test does, whichever of the three it is and in whichever lane: the
+    /// same miss where f32 alone would hit, among triangles it hits.
+    #[test]
+    fn zero_edge_functions_are_redone_in_f64() {
+        use crate::{Primitives, Triangles};
+        let ray = Ray::new(Vec3::new(0.0, 0.0, -1.0), Vec3::Z, 0.0, f32::INFINITY);
+        let [a, b, c] = f64_only_miss();
+        let hit = [
+            Vec3::new(-1.0, -1.0, 0.0),
+            Vec3::new(1.0, -1.0, 0.0),
+            Vec3::new(0.0, 1.0, 0.0),
+        ];
+        for turn in 0..3 {
+            // Turning the corners makes the zero edge function `v`, then `w`.
+            let mut tri = [a, b, c];
+            tri.rotate_left(turn);
+            assert!(
+                raymesh_geometry::intersect_triangle(&ray, f32::INFINITY, tri[0], tri[1], tri[2])
+                    .is_none(),
+                "the scalar test misses turn {turn}"
+            );
+            for lane in 0..8 {
+                let mut corners = vec![hit; 12];
+                corners[2 + lane] = tri;
+                let tris = Triangles::from_corners(&corners);
+                let want = |k: usize| {
+                    let [p, q, r] = corners[2 + k];
+                    raymesh_geometry::intersect_triangle(&ray, f32::INFINITY, p, q, r)
+                };
+                let (mask, out) = tris.intersect_block(2, 8, &ray, f32::INFINITY);
+                lanes_match(mask, &out, want).expect("intersect_block");
+                assert_eq!(mask, 0xff & !(1 << lane), "turn {turn}, lane {lane}");
+                if let Some(avx) = Avx2::detect() {
+                    let pre = tris.block_ray(&ray);
+                    let (mask, out) =
+                        tris.intersect_block_pre(avx, &pre, 2, 8, &ray, f32::INFINITY);
+                    lanes_match(mask, &out, want).expect("intersect_block_pre");
+                }
+                let ids: Vec<u32> = (2..10).collect();
+                let (mask, out) = tris.intersect_ids(&ids, &ray, f32::INFINITY);
+                lanes_match(mask, &out, want).expect("intersect_ids");
+            }
         }
     }
 
