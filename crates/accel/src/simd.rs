@@ -943,6 +943,7 @@ unsafe fn triangles8_core(
         // sign. Its check for an edge-on plane needs nothing here either:
         // edge functions of one sign or zero sum to zero only when all
         // three are zero, and then `t` is `0 * inf` or NaN, a NaN.
+
         // `p * q - r * s` in f64, four lanes at a time (macros, not
         // closures: see `load`).
         macro_rules! edge {
