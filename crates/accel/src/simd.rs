@@ -681,23 +681,23 @@ pub(crate) fn triangles8(
     assert!(cpu_has_avx2());
     // SAFETY: every load (a row offset of at most 64, plus `span`, then 8
     // lanes) lies inside `data` (asserted), and the CPU has AVX2 (asserted).
-    let (hit, redo, out) =
+    let (hit, out) =
         unsafe { triangles8_avx(data.as_ptr().add(at), first % GROUP_SLOTS, span, ray, tmax) };
-    active_lanes(hit, redo, count, out)
+    active_lanes(hit, count, out)
 }
 
-/// The kernel's masks restricted to the block's `count` lanes, and the
-/// lanes to redo taken out of the hits.
+/// The kernel's hit mask restricted to the block's `count` lanes, with
+/// the empty mask of lanes to redo that callers share with the NEON
+/// kernel (the AVX2 one redoes its own: see [`triangles8_core`]).
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
-fn active_lanes(hit: u32, redo: u32, count: usize, out: BlockHits) -> (u32, u32, BlockHits) {
+fn active_lanes(hit: u32, count: usize, out: BlockHits) -> (u32, u32, BlockHits) {
     let active = if count >= 8 {
         0xff
     } else {
         (1u32 << count) - 1
     };
-    let (hit, redo) = (hit & active, redo & active);
-    (hit & !redo, redo, out)
+    (hit & active, 0, out)
 }
 
 /// Proof that the CPU has AVX2 and the kernels are enabled
@@ -791,7 +791,7 @@ pub(crate) fn triangles8_pre(
     // `kernel_row`, or are zero by default), so each of the two loads of
     // 8 lanes a row stays inside `data` (asserted); the CPU has AVX2 (the
     // `Avx2` proof).
-    let (hit, redo, out) = unsafe {
+    let (hit, out) = unsafe {
         triangles8_core(
             data.as_ptr().add(at),
             |r| tr.rows[r],
@@ -803,7 +803,7 @@ pub(crate) fn triangles8_pre(
             tmax,
         )
     };
-    active_lanes(hit, redo, count, out)
+    active_lanes(hit, count, out)
 }
 
 /// # Safety
@@ -818,7 +818,7 @@ unsafe fn triangles8_avx(
     span: usize,
     ray: &Ray,
     tmax: f32,
-) -> (u32, u32, BlockHits) {
+) -> (u32, BlockHits) {
     let (s, k) = ray.shear();
     let o = ray.permute(ray.origin());
     // SAFETY: as this function's contract.
@@ -838,10 +838,10 @@ unsafe fn triangles8_avx(
 
 /// The kernel itself, inlined into its caller: called from code compiled
 /// for AVX2 (`triangles8_avx`, or a traversal under `with_avx2`) its
-/// intrinsics inline too. Lanes with an edge function of exactly zero
-/// are redone in f64 inside it, as the scalar test redoes them, so that
-/// it hands nothing back to redo (and the walks it inlines into make no
-/// call for it).
+/// intrinsics inline too. Returns the mask of lanes hit and their hits.
+/// Lanes with an edge function of exactly zero are redone in f64 inside
+/// it, as the scalar test redoes them, so that nothing is left to redo
+/// (and the walks it inlines into make no call for it).
 ///
 /// The ray comes as its shear constants, its origin with the axes
 /// permuted, and `tmin`; row `r` of the 9 (corner `r / 3`, permuted axis
@@ -865,7 +865,7 @@ unsafe fn triangles8_core(
     origin: [f32; 3],
     tmin: f32,
     tmax: f32,
-) -> (u32, u32, BlockHits) {
+) -> (u32, BlockHits) {
     use std::arch::x86_64::*;
     let (sx, sy, sz) = (
         _mm256_set1_ps(shear[0]),
@@ -1008,10 +1008,8 @@ unsafe fn triangles8_core(
     // The registers as they are: `__m256` and `[f32; 8]` have the same
     // size, and every bit pattern is a valid float.
     let lanes = |x: __m256| std::mem::transmute::<__m256, [f32; 8]>(x);
-    // Nothing is left for the caller to redo.
     (
         _mm256_movemask_ps(ok) as u32,
-        0,
         BlockHits {
             t: lanes(t),
             u: lanes(_mm256_mul_ps(v, inv_det)),
