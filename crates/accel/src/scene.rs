@@ -307,11 +307,11 @@ impl<P: Primitives> Scene<P> {
         if !ray.is_valid() {
             return None;
         }
-        avx.run(|| {
+        let done = avx.run(|| {
             let mut best = None;
             let mut tmax = ray.tmax();
             let pre = self.prims.block_ray(ray);
-            bvh.traverse_blocks_avx2::<true, C>(
+            let done = bvh.traverse_blocks_avx2::<true, C>(
                 avx,
                 ray,
                 counter,
@@ -323,8 +323,11 @@ impl<P: Primitives> Scene<P> {
                 },
                 &|first| self.prims.prefetch_block(first),
             );
-            best
-        })
+            done.then_some(best)
+        });
+        // A ray the inline stack could not hold walks again, from the start
+        // (with counts on, the first try's visits count too).
+        done.unwrap_or_else(|| self.closest_general(ray, counter))
     }
 
     /// [`Self::closest_avx2`] for any-hit queries, for
@@ -340,10 +343,10 @@ impl<P: Primitives> Scene<P> {
         if !ray.is_valid() {
             return None;
         }
-        avx.run(|| {
+        let done = avx.run(|| {
             let mut found = None;
             let pre = self.prims.block_ray(ray);
-            bvh.traverse_blocks_avx2::<false, C>(
+            let done = bvh.traverse_blocks_avx2::<false, C>(
                 avx,
                 ray,
                 counter,
@@ -359,8 +362,9 @@ impl<P: Primitives> Scene<P> {
                 },
                 &|_| {},
             );
-            found
-        })
+            done.then_some(found)
+        });
+        done.unwrap_or_else(|| self.any_general(ray, counter))
     }
 
     /// Takes hit `h` of primitive `prim` (with `h.t <= tmax`) as the

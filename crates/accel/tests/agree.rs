@@ -501,3 +501,36 @@ fn stats_are_sane() {
     assert_eq!(cb.prims, m.len() as u64);
     assert!(c.prims < cb.prims && c.nodes > 0);
 }
+
+/// A ray with more pending than the 8-wide walk's inline stack holds: on
+/// 300,000 copies of one triangle the 8-wide tree is 6 levels deep and a
+/// ray through the triangle enters every child of every node (7 pending a
+/// level, past the 32 inline), so the AVX2 walk stops and the ray walks
+/// again with a stack that spills. Every path gives brute force's hit:
+/// the least index at the common `t`.
+#[test]
+fn rays_past_the_inline_stack_get_brute_forces_hits() {
+    let tri = [Vec3::ZERO, Vec3::X, Vec3::Y];
+    let mesh = tri_mesh(&vec![tri; 300_000]);
+    let tris = Triangles::from_mesh(&mesh);
+    let brute = Scene::build(tris.clone(), AccelKind::Brute);
+    let bvh8 = Scene::build(tris, AccelKind::Bvh8);
+    assert!(bvh8.stats().depth >= 6, "{:?}", bvh8.stats());
+    let rays = [
+        Ray::infinite(Vec3::new(0.2, 0.2, -1.0), Vec3::Z),
+        Ray::infinite(Vec3::new(0.3, 0.1, 1.0), -Vec3::Z),
+        Ray::infinite(Vec3::new(0.1, 0.1, -1.0), Vec3::new(0.1, 0.2, 1.0)),
+        Ray::infinite(Vec3::new(5.0, 5.0, -1.0), Vec3::Z),
+    ];
+    for (i, r) in rays.iter().enumerate() {
+        let want = brute.intersect_bare(r);
+        assert_eq!(want.is_some(), i < 3);
+        assert_eq!(
+            bare_bits(bvh8.intersect_bare(r)),
+            bare_bits(want),
+            "ray {i}"
+        );
+        assert_eq!(bvh8.any_hit_bare(r).is_some(), want.is_some(), "ray {i}");
+        assert_eq!(bare_of(bvh8.intersect(r)), bare_bits(want), "ray {i}");
+    }
+}
