@@ -1,5 +1,5 @@
 //! `raymesh-peers MESH... [--rays RAYS.npy | --workloads LIST --size N]
-//! [--threads LIST] [--repeat R] [--accel A] [--peers LIST]
+//! [--threads LIST] [--repeat R] [--interleave] [--accel A] [--peers LIST]
 //! [--markdown] [--json] [--chart OUT.png]`: the same rays through raymesh
 //! and its peers, in one run: Intel Embree 3 (built with `--features
 //! embree`) and the Rust crates obvhs, bvh and parry3d. For each engine and
@@ -80,6 +80,15 @@ struct Args {
     /// the Rust peers have no such builder and build as they always do.
     #[arg(long, value_enum, default_value_t = Quality::Medium)]
     quality: Quality,
+    /// Builds every engine first and keeps them all, then takes turns:
+    /// each of the R repeats of a build, and of each workload and query,
+    /// runs every engine once before the next repeat (the best of each
+    /// engine's R is reported). Without it each engine builds and traces
+    /// everything in turn, and a machine whose speed drifts over the run
+    /// skews the ratios; with it the engines' structures are all in
+    /// memory at once.
+    #[arg(long)]
+    interleave: bool,
 }
 
 /// `--quality`.
@@ -194,6 +203,105 @@ fn build_engine(
     engines::build(name, accel, &config, positions, triangles)
 }
 
+/// `--interleave`'s pass over one mesh at one thread count: every engine
+/// built (best of R builds, taking turns), then each workload and query
+/// traced by every engine in turn, R rounds (best of each engine's R).
+/// Returns the builds and traces in the order the one-engine-at-a-time
+/// pass makes them (engine by engine; meshes named by the caller), and
+/// each engine's Mrays/s in that order.
+#[allow(clippy::type_complexity)]
+fn interleaved(
+    args: &Args,
+    names: &[&'static str],
+    mesh: &raymesh_mesh::IndexedMesh,
+    tris: &[[u32; 3]],
+    workloads: &[(String, Vec<[f32; 8]>)],
+    run: &Runner<'_>,
+    t: usize,
+) -> (Vec<Build>, Vec<Trace>, Vec<(&'static str, Vec<f64>)>) {
+    let build = |name: &str| {
+        run.pool
+            .install(|| build_engine(name, args.accel, args.quality, &mesh.positions, tris, t))
+    };
+    let mut built: Vec<Option<Box<dyn Engine>>> = names.iter().map(|_| None).collect();
+    let mut build_ms = vec![f64::INFINITY; names.len()];
+    for _ in 0..args.repeat.max(1) {
+        for (i, &name) in names.iter().enumerate() {
+            // One structure per engine in memory: the last round's is kept.
+            built[i] = None;
+            let e = build(name);
+            build_ms[i] = build_ms[i].min(e.build_ms());
+            built[i] = Some(e);
+        }
+    }
+    let engines: Vec<Box<dyn Engine>> = built.into_iter().flatten().collect();
+    let builds = names
+        .iter()
+        .zip(&engines)
+        .zip(&build_ms)
+        .map(|((_, e), &ms)| Build {
+            kind: "build",
+            mesh: String::new(),
+            engine: e.name(),
+            threads: t,
+            quality: args.quality,
+            build_ms: ms,
+            bytes_per_triangle: e.bytes().map(|b| b as f64 / tris.len().max(1) as f64),
+            sah_cost: e.sah_cost(),
+        })
+        .collect();
+    let once = Runner { repeat: 1, ..*run };
+    // Per engine, per (workload, query): Mrays/s and agreement.
+    let mut cases: Vec<Vec<(f64, f64)>> = vec![Vec::new(); names.len()];
+    for (_, rays) in workloads {
+        for any in [false, true] {
+            let mut best = vec![f64::INFINITY; names.len()];
+            let mut answers: Vec<Vec<Answer>> = vec![Vec::new(); names.len()];
+            for _ in 0..args.repeat.max(1) {
+                for (i, e) in engines.iter().enumerate() {
+                    let (secs, a) = e.trace(rays, any, &once);
+                    best[i] = best[i].min(secs);
+                    answers[i] = a;
+                }
+            }
+            for i in 0..names.len() {
+                let same = answers[i]
+                    .iter()
+                    .zip(&answers[0])
+                    .filter(|(a, b)| agrees(a, b))
+                    .count();
+                let agree = same as f64 / rays.len().max(1) as f64;
+                cases[i].push((rays.len() as f64 / best[i] / 1e6, agree));
+            }
+        }
+    }
+    let mut traces = Vec::new();
+    let mut rates = Vec::new();
+    for (i, &name) in names.iter().enumerate() {
+        let mut k = 0;
+        for (workload, _) in workloads {
+            for any in [false, true] {
+                let (mrays, agree) = cases[i][k];
+                traces.push(Trace {
+                    kind: "trace",
+                    mesh: String::new(),
+                    workload: workload.clone(),
+                    threads: t,
+                    query: if any { "any-hit" } else { "closest" },
+                    engine: name,
+                    mrays_per_s: mrays,
+                    raymesh_ratio: f64::NAN,
+                    agree,
+                    agree_with: names[0],
+                });
+                k += 1;
+            }
+        }
+        rates.push((name, cases[i].iter().map(|c| c.0).collect()));
+    }
+    (builds, traces, rates)
+}
+
 /// Whether two answers agree: both miss, or hit the same triangle, or at
 /// `t` within 1e-4 relative.
 fn agrees(a: &Answer, b: &Answer) -> bool {
@@ -288,7 +396,19 @@ fn main() -> Result<()> {
             // engine in turn: built, traced, compared, dropped.
             let mut reference_answers: Vec<Vec<Answer>> = Vec::new();
             let mut rates: Vec<(&'static str, Vec<f64>)> = Vec::new();
-            for &name in &names {
+            if args.interleave {
+                let (b, tr, r) = interleaved(&args, &names, &mesh, &tris, &workloads, &run, t);
+                for mut b in b {
+                    b.mesh.clone_from(&mesh_name);
+                    builds.push(b);
+                }
+                for mut tr in tr {
+                    tr.mesh.clone_from(&mesh_name);
+                    traces.push(tr);
+                }
+                rates = r;
+            }
+            for &name in names.iter().filter(|_| !args.interleave) {
                 // Best of R builds (the first of a process pays for its
                 // allocator and thread start-up); the last one is traced.
                 let build =
