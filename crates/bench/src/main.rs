@@ -134,6 +134,34 @@ struct Trace {
 }
 
 impl Trace {
+    /// `engine`'s pass over `workload` (`any`: any-hit queries) at `threads`
+    /// threads, its hits agreeing with `agree_with`'s on a fraction `agree`
+    /// of the rays; raymesh's ratio is filled in once every engine has run.
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        mesh: &str,
+        workload: &str,
+        threads: usize,
+        any: bool,
+        engine: &'static str,
+        mrays_per_s: f64,
+        agree: f64,
+        agree_with: &'static str,
+    ) -> Self {
+        Self {
+            kind: "trace",
+            mesh: mesh.to_string(),
+            workload: workload.to_string(),
+            threads,
+            query: if any { "any-hit" } else { "closest" },
+            engine,
+            mrays_per_s,
+            raymesh_ratio: f64::NAN,
+            agree,
+            agree_with,
+        }
+    }
+
     /// Whether `other` measured the same case (mesh, workload, thread
     /// count and query), whatever the engine.
     fn same_case(&self, other: &Trace) -> bool {
@@ -265,12 +293,7 @@ fn interleaved(
                 }
             }
             for i in 0..names.len() {
-                let same = answers[i]
-                    .iter()
-                    .zip(&answers[0])
-                    .filter(|(a, b)| agrees(a, b))
-                    .count();
-                let agree = same as f64 / rays.len().max(1) as f64;
+                let agree = agreement(&answers[i], &answers[0]);
                 cases[i].push((rays.len() as f64 / best[i] / 1e6, agree));
             }
         }
@@ -282,24 +305,21 @@ fn interleaved(
         for (workload, _) in workloads {
             for any in [false, true] {
                 let (mrays, agree) = cases[i][k];
-                traces.push(Trace {
-                    kind: "trace",
-                    mesh: String::new(),
-                    workload: workload.clone(),
-                    threads: t,
-                    query: if any { "any-hit" } else { "closest" },
-                    engine: name,
-                    mrays_per_s: mrays,
-                    raymesh_ratio: f64::NAN,
-                    agree,
-                    agree_with: names[0],
-                });
+                traces.push(Trace::new(
+                    "", workload, t, any, name, mrays, agree, names[0],
+                ));
                 k += 1;
             }
         }
         rates.push((name, cases[i].iter().map(|c| c.0).collect()));
     }
     (builds, traces, rates)
+}
+
+/// The fraction of rays whose answers in `a` and `b` agree ([`agrees`]).
+fn agreement(a: &[Answer], b: &[Answer]) -> f64 {
+    let same = a.iter().zip(b).filter(|(a, b)| agrees(a, b)).count();
+    same as f64 / a.len().max(1) as f64
 }
 
 /// Whether two answers agree: both miss, or hit the same triangle, or at
@@ -439,27 +459,13 @@ fn main() -> Result<()> {
                             reference_answers.push(answers);
                             1.0
                         } else {
-                            let same = answers
-                                .iter()
-                                .zip(&reference_answers[k])
-                                .filter(|(a, b)| agrees(a, b))
-                                .count();
-                            same as f64 / rays.len().max(1) as f64
+                            agreement(&answers, &reference_answers[k])
                         };
                         let mrays = rays.len() as f64 / secs / 1e6;
                         mine.push(mrays);
-                        traces.push(Trace {
-                            kind: "trace",
-                            mesh: mesh_name.clone(),
-                            workload: workload.clone(),
-                            threads: t,
-                            query: if any { "any-hit" } else { "closest" },
-                            engine: name,
-                            mrays_per_s: mrays,
-                            raymesh_ratio: f64::NAN,
-                            agree,
-                            agree_with: reference,
-                        });
+                        traces.push(Trace::new(
+                            &mesh_name, workload, t, any, name, mrays, agree, reference,
+                        ));
                         k += 1;
                     }
                 }
