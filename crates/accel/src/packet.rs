@@ -9,7 +9,7 @@
 //!
 //! Exact: a packet is made only of rays that share their direction's
 //! octant and dominant axis, so every lane runs the single-ray arithmetic
-//! of [`crate::bvh::slab_scalar`] and [`raymesh_geometry::intersect_triangle`]
+//! of `bvh::wide::slab_scalar` and [`raymesh_geometry::intersect_triangle`]
 //! in the same order, with no fused multiply-add; each lane culls only what
 //! its own ray would cull, and the closest hit (least `t`, ties to the least
 //! index) is the one the single-ray traversal returns, bit for bit. The
@@ -155,7 +155,7 @@ impl Packet8 {
 /// The slab test of one box (`min`, `max`) against every lane, clipped to
 /// each lane's `[tmin, bound]`: a bit per lane that enters the box, and each
 /// lane's entry distance. Per lane, the arithmetic of
-/// [`crate::bvh::slab_scalar`] in its order, so the bits are the same.
+/// `bvh::wide::slab_scalar` in its order, so the bits are the same.
 /// Uses the AVX kernel where the CPU has it (bit-identical results).
 #[inline(always)]
 pub(crate) fn slab(

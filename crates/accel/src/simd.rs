@@ -165,7 +165,7 @@ fn truncate3_scalar(f: raymesh_geometry::Vec3A) -> u32 {
 }
 
 /// The slab test of an 8-wide node's boxes in AVX: the same result as
-/// [`crate::bvh::slab_scalar`] (entry distances in `t`, a bit per child
+/// `bvh::wide::slab_scalar` (entry distances in `t`, a bit per child
 /// entered before `bound`). Panics unless `W == 8` or without AVX2.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]

@@ -341,7 +341,7 @@ impl Bvh {
     /// [`Self::traverse_blocks`], calling `prefetch_leaf(first)` for each
     /// leaf the walk pushes for later (the farther of two children
     /// entered), as the wide walk does
-    /// ([`super::WideBvh::traverse_blocks_avx2`]).
+    /// ([`WideBvh::traverse_blocks_avx2`]).
     #[inline]
     pub(crate) fn traverse_blocks_prefetching<C: RayCounter>(
         &self,
