@@ -131,6 +131,13 @@ pub struct BuildConfig {
     /// primitives tested a ray, at the price of a slower build and the
     /// duplicated references' memory.
     pub spatial_splits: f32,
+    /// Reinsertion optimization (Bittner, Hapala & Havran 2013) of the
+    /// binary BVH after its build (`bvh-median`, `bvh-binned`,
+    /// `bvh-sweep`, and the binary tree `bvh4` and `bvh8` are collapsed
+    /// from): subtrees are moved to where they lower the SAH cost. Off by
+    /// default: it costs several builds' time for a few percent fewer
+    /// nodes visited a ray.
+    pub optimize: bool,
 }
 
 impl Default for BuildConfig {
@@ -146,6 +153,7 @@ impl Default for BuildConfig {
             bins: 32,
             leaf_block: None,
             spatial_splits: 0.0,
+            optimize: false,
         }
     }
 }
@@ -216,12 +224,21 @@ impl Accel {
         clip: &Clip<'_>,
         config: &BuildConfig,
     ) -> Option<Self> {
-        let binned = || BvhBuilder::BinnedSah.build_spatial(n, bounds, clip, config);
+        let opt = |bvh: Bvh| {
+            if config.optimize {
+                bvh.optimized()
+            } else {
+                bvh
+            }
+        };
+        let binned = || opt(BvhBuilder::BinnedSah.build_spatial(n, bounds, clip, config));
         Some(match kind {
-            AccelKind::BvhMedian => Self::Bvh(BvhBuilder::Median.build_by(n, bounds, config), kind),
+            AccelKind::BvhMedian => {
+                Self::Bvh(opt(BvhBuilder::Median.build_by(n, bounds, config)), kind)
+            }
             AccelKind::BvhBinned => Self::Bvh(binned(), kind),
             AccelKind::BvhSweep => {
-                Self::Bvh(BvhBuilder::SweepSah.build_by(n, bounds, config), kind)
+                Self::Bvh(opt(BvhBuilder::SweepSah.build_by(n, bounds, config)), kind)
             }
             AccelKind::Bvh4 => Self::Bvh4(Bvh4::from_binary(binned())),
             AccelKind::Bvh8 => Self::Bvh8(Bvh8::from_binary(binned())),

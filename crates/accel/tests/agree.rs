@@ -32,8 +32,30 @@ fn spatial() -> BuildConfig {
     }
 }
 
+/// The BVHs reinsertion optimizes, each once: the binary trees, and the
+/// binned one with spatial splits too, and a wide one collapsed from an
+/// optimized tree (its leaves are runs of the rewritten permutation).
+fn optimized() -> [(AccelKind, BuildConfig); 5] {
+    let opt = BuildConfig {
+        optimize: true,
+        ..BuildConfig::default()
+    };
+    let spatial_opt = BuildConfig {
+        optimize: true,
+        ..spatial()
+    };
+    [
+        (AccelKind::BvhMedian, opt.clone()),
+        (AccelKind::BvhBinned, opt.clone()),
+        (AccelKind::BvhSweep, opt.clone()),
+        (AccelKind::Bvh8, opt),
+        (AccelKind::BvhBinned, spatial_opt),
+    ]
+}
+
 /// Every kind with default settings, then the spatial-split kinds with
-/// [`spatial`], each with how to name it in a failure.
+/// [`spatial`], then the [`optimized`] builds, each with how to name it in
+/// a failure.
 fn builds() -> impl Iterator<Item = (AccelKind, BuildConfig, &'static str)> {
     KINDS
         .into_iter()
@@ -42,6 +64,11 @@ fn builds() -> impl Iterator<Item = (AccelKind, BuildConfig, &'static str)> {
             SPATIAL_KINDS
                 .into_iter()
                 .map(|k| (k, spatial(), " with spatial splits")),
+        )
+        .chain(
+            optimized()
+                .into_iter()
+                .map(|(k, c)| (k, c, " optimized by reinsertion")),
         )
 }
 

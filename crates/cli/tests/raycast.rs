@@ -126,6 +126,25 @@ fn every_structure_writes_the_same_hits() {
                 "{w}: {accel} --spatial-splits wrote other hits than brute force"
             );
         }
+        // Reinsertion: other trees, the same hits; the JSON says so.
+        for accel in ["bvh-median", "bvh8"] {
+            let out = dir.join(format!("{w}-{accel}-optimized.npy"));
+            let json = run_ok(
+                raymesh()
+                    .arg("raycast")
+                    .arg(&mesh)
+                    .arg("--rays")
+                    .arg(&rays)
+                    .args(["--accel", accel, "--optimize", "--json", "--out"])
+                    .arg(&out),
+            );
+            let v: serde_json::Value = serde_json::from_str(&json).unwrap();
+            assert_eq!(v["optimize"], true, "{json}");
+            assert!(
+                reference.as_ref() == Some(&npy_data(&out)),
+                "{w}: {accel} --optimize wrote other hits than brute force"
+            );
+        }
         // Packets of eight rays, and streams of rays walking the binary
         // BVHs interleaved, with and without the SIMD kernels.
         for (accel, mode, simd) in [

@@ -34,6 +34,10 @@ pub struct SceneDesc {
     /// `raymesh_accel::BuildConfig::spatial_splits`).
     #[serde(default)]
     pub spatial_splits: f32,
+    /// Reinsertion optimization of the meshes' BVHs after their build
+    /// (see `raymesh_accel::BuildConfig::optimize`); off by default.
+    #[serde(default)]
+    pub optimize: bool,
     /// Most mirror bounces.
     #[serde(default = "default_depth")]
     pub max_depth: u32,

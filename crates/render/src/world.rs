@@ -204,6 +204,7 @@ impl World {
         }
         let config = BuildConfig {
             spatial_splits: desc.spatial_splits,
+            optimize: desc.optimize,
             ..BuildConfig::default()
         };
         let img = &desc.image;

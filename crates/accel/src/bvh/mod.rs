@@ -6,6 +6,7 @@
 //! farther on a fixed-size stack, whose depth the builders bound.
 
 mod build;
+mod optimize;
 mod wide;
 
 pub(crate) use build::{max_keep, min_keep};
@@ -187,6 +188,13 @@ impl Bvh {
     /// order; from then on leaves name primitives by slot.
     pub(crate) fn take_prim_ids(&mut self) -> Vec<u32> {
         std::mem::take(&mut self.prim_ids)
+    }
+
+    /// This tree improved by reinsertion (see [`crate::BuildConfig::optimize`]):
+    /// the same leaves, arranged for a lower SAH cost.
+    #[must_use]
+    pub fn optimized(self) -> Self {
+        optimize::optimize(self, optimize::Rounds::default())
     }
 
     /// Depth of the deepest leaf (1 for a single leaf, 0 for an empty tree).

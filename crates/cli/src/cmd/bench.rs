@@ -49,6 +49,10 @@ pub struct Args {
     #[arg(long, value_name = "FRACTION", num_args = 0..=1, default_missing_value = "0.25",
           value_parser = crate::cmd::parse_fraction)]
     pub spatial_splits: Option<f32>,
+    /// Reinsertion optimization of every BVH's binary tree (as `raycast
+    /// --optimize`).
+    #[arg(long)]
+    pub optimize: bool,
 }
 
 /// One measured row.
@@ -71,6 +75,7 @@ struct Row {
     nodes_per_ray: f64,
     triangles_per_ray: f64,
     spatial_splits: f32,
+    optimize: bool,
 }
 
 fn parse_list<T: std::str::FromStr<Err = String>>(s: &str) -> Result<Vec<T>> {
@@ -92,6 +97,7 @@ pub fn run(args: &Args) -> Result<()> {
     let workloads: Vec<Workload> = parse_list(&args.workloads)?;
     let config = BuildConfig {
         spatial_splits: args.spatial_splits.unwrap_or(0.0),
+        optimize: args.optimize,
         ..BuildConfig::default()
     };
     let frame = args.frame.as_deref().map(parse_frame).transpose()?;
@@ -191,6 +197,7 @@ pub fn run(args: &Args) -> Result<()> {
                         nodes_per_ray,
                         triangles_per_ray: tris_per_ray,
                         spatial_splits: config.spatial_splits,
+                        optimize: config.optimize,
                     });
                 }
                 bar.inc(1);

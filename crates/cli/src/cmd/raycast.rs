@@ -67,6 +67,12 @@ pub struct Args {
     #[arg(long, value_name = "FRACTION", num_args = 0..=1, default_missing_value = "0.25",
           value_parser = crate::cmd::parse_fraction)]
     pub spatial_splits: Option<f32>,
+    /// Reinsertion optimization of the binary BVH after its build (every
+    /// BVH: bvh-median, bvh-binned, bvh-sweep, and the tree bvh4 and bvh8
+    /// collapse): subtrees moved to where they lower the SAH cost, for
+    /// fewer nodes a ray at several builds' time.
+    #[arg(long)]
+    pub optimize: bool,
 }
 
 /// The `--json` object.
@@ -89,6 +95,7 @@ struct Report {
     stream: bool,
     threads: usize,
     spatial_splits: f32,
+    optimize: bool,
     #[serde(skip_serializing_if = "Option::is_none")]
     nodes_per_ray: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -205,6 +212,7 @@ pub fn run(args: &Args) -> Result<()> {
     ));
     let config = BuildConfig {
         spatial_splits: args.spatial_splits.unwrap_or(0.0),
+        optimize: args.optimize,
         ..BuildConfig::default()
     };
     let scene = pool.install(|| Scene::from_mesh_with(&tm, args.accel, &config));
@@ -263,6 +271,7 @@ pub fn run(args: &Args) -> Result<()> {
         stream: args.stream,
         threads,
         spatial_splits: config.spatial_splits,
+        optimize: config.optimize,
         nodes_per_ray: counted.map(|c| c.0),
         prims_per_ray: counted.map(|c| c.1),
     };
@@ -270,7 +279,7 @@ pub fn run(args: &Args) -> Result<()> {
         println!("{}", serde_json::to_string(&report)?);
     } else {
         println!(
-            "structure          {} ({} threads{}{})",
+            "structure          {} ({} threads{}{}{})",
             report.accel,
             threads,
             if args.any_hit { ", any hit" } else { "" },
@@ -278,6 +287,11 @@ pub fn run(args: &Args) -> Result<()> {
                 format!(", spatial splits up to {}%", config.spatial_splits * 100.0)
             } else {
                 String::new()
+            },
+            if config.optimize {
+                ", optimized by reinsertion"
+            } else {
+                ""
             }
         );
         println!("triangles          {}", report.triangles);

@@ -31,6 +31,10 @@ pub struct Args {
     #[arg(long, value_name = "FRACTION", num_args = 0..=1, default_missing_value = "0.25",
           value_parser = crate::cmd::parse_fraction)]
     pub spatial_splits: Option<f32>,
+    /// Reinsertion optimization of the meshes' BVHs (sets the scene's
+    /// `optimize`; as `raycast --optimize`).
+    #[arg(long)]
+    pub optimize: bool,
     /// Image width (overrides the scene's).
     #[arg(long)]
     pub width: Option<u32>,
@@ -149,6 +153,9 @@ pub fn run(args: &Args) -> Result<()> {
     }
     if let Some(f) = args.spatial_splits {
         desc.spatial_splits = f;
+    }
+    if args.optimize {
+        desc.optimize = true;
     }
     if let Some(w) = args.width {
         desc.image.width = w;
