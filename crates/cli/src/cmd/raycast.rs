@@ -69,8 +69,9 @@ pub struct Args {
     pub spatial_splits: Option<f32>,
     /// Reinsertion optimization of the binary BVH after its build (every
     /// BVH: bvh-median, bvh-binned, bvh-sweep, and the tree bvh4 and bvh8
-    /// collapse): subtrees moved to where they lower the SAH cost, for
-    /// fewer nodes a ray at several builds' time.
+    /// collapse): subtrees moved to where they lower the SAH cost. Pays
+    /// on poor trees (bvh-median), hardly on the binned SAH trees of
+    /// scanned meshes; 1.2 to 10 times the build.
     #[arg(long)]
     pub optimize: bool,
 }
