@@ -106,43 +106,44 @@ fn every_structure_writes_the_same_hits() {
             reference.as_ref() == Some(&npy_data(&out)),
             "{w}: bvh8 --no-simd wrote other hits than brute force"
         );
-        // Spatial splits: parts of triangles in several leaves, the same
-        // hits; the JSON says the budget.
-        for accel in ["bvh-binned", "bvh8"] {
-            let out = dir.join(format!("{w}-{accel}-spatial.npy"));
+        // Spatial splits (parts of triangles in several leaves) and
+        // reinsertion (other trees): the same hits; the JSON says which.
+        for (accel, flag, key, want) in [
+            (
+                "bvh-binned",
+                "--spatial-splits",
+                "spatial_splits",
+                serde_json::json!(0.25),
+            ),
+            (
+                "bvh8",
+                "--spatial-splits",
+                "spatial_splits",
+                serde_json::json!(0.25),
+            ),
+            (
+                "bvh-median",
+                "--optimize",
+                "optimize",
+                serde_json::json!(true),
+            ),
+            ("bvh8", "--optimize", "optimize", serde_json::json!(true)),
+        ] {
+            let out = dir.join(format!("{w}-{accel}{flag}.npy"));
             let json = run_ok(
                 raymesh()
                     .arg("raycast")
                     .arg(&mesh)
                     .arg("--rays")
                     .arg(&rays)
-                    .args(["--accel", accel, "--spatial-splits", "--json", "--out"])
+                    .args(["--accel", accel, flag, "--json", "--out"])
                     .arg(&out),
             );
             let v: serde_json::Value = serde_json::from_str(&json).unwrap();
-            assert_eq!(v["spatial_splits"], 0.25, "{json}");
+            assert_eq!(v[key], want, "{json}");
             assert!(
                 reference.as_ref() == Some(&npy_data(&out)),
-                "{w}: {accel} --spatial-splits wrote other hits than brute force"
-            );
-        }
-        // Reinsertion: other trees, the same hits; the JSON says so.
-        for accel in ["bvh-median", "bvh8"] {
-            let out = dir.join(format!("{w}-{accel}-optimized.npy"));
-            let json = run_ok(
-                raymesh()
-                    .arg("raycast")
-                    .arg(&mesh)
-                    .arg("--rays")
-                    .arg(&rays)
-                    .args(["--accel", accel, "--optimize", "--json", "--out"])
-                    .arg(&out),
-            );
-            let v: serde_json::Value = serde_json::from_str(&json).unwrap();
-            assert_eq!(v["optimize"], true, "{json}");
-            assert!(
-                reference.as_ref() == Some(&npy_data(&out)),
-                "{w}: {accel} --optimize wrote other hits than brute force"
+                "{w}: {accel} {flag} wrote other hits than brute force"
             );
         }
         // Packets of eight rays, and streams of rays walking the binary

@@ -126,18 +126,6 @@ impl Tree {
         1 + self.height[a as usize].max(self.height[b as usize])
     }
 
-    /// Recomputes heights from `i` up, stopping at the first one unchanged.
-    fn fix_heights(&mut self, mut i: u32) {
-        while i != NONE {
-            let h = self.height_of_kids(i);
-            if h == self.height[i as usize] {
-                return;
-            }
-            self.height[i as usize] = h;
-            i = self.parent[i as usize];
-        }
-    }
-
     /// The nodes reachable from the root, children before parents.
     fn postorder(&self) -> Vec<u32> {
         let mut order = self.preorder();
@@ -168,14 +156,15 @@ impl Tree {
             .sum()
     }
 
-    /// Recomputes boxes from `i` up, stopping at the first one unchanged.
+    /// Recomputes boxes and heights from `i` up, stopping at the first
+    /// node where neither changes (above it nothing does).
     fn refit(&mut self, mut i: u32) {
         while i != NONE {
-            let b = self.union_of_kids(i);
-            if b == self.bounds[i as usize] {
+            let (b, h) = (self.union_of_kids(i), self.height_of_kids(i));
+            if b == self.bounds[i as usize] && h == self.height[i as usize] {
                 return;
             }
-            self.bounds[i as usize] = b;
+            (self.bounds[i as usize], self.height[i as usize]) = (b, h);
             i = self.parent[i as usize];
         }
     }
@@ -206,7 +195,6 @@ impl Tree {
         self.parent[p as usize] = NONE;
         let g = self.parent[sibling as usize];
         self.refit(g);
-        self.fix_heights(g);
         (p, sibling, side)
     }
 
@@ -276,7 +264,6 @@ impl Tree {
         self.height[p as usize] = self.height_of_kids(p);
         let g = self.parent[p as usize];
         self.refit(g);
-        self.fix_heights(g);
     }
 
     /// One round: the largest `batch` share of the nodes, each taken out
