@@ -329,8 +329,9 @@ impl Tree {
 }
 
 /// Optimizes `bvh` by reinsertion (see the module's doc) and returns the
-/// better tree, or `bvh` itself where there is nothing to gain: fewer
-/// than three nodes, or a root box of no or infinite area.
+/// better tree, or `bvh` itself where there is nothing to gain (fewer
+/// than three nodes, or a root box of no or infinite area) or no
+/// permutation to rewrite (an owner took it: [`Bvh::take_prim_ids`]).
 ///
 /// No move puts a leaf deeper than [`SHALLOW`] levels, or than the tree
 /// already was if it was deeper: past them the binary walk sets up a
@@ -339,7 +340,8 @@ impl Tree {
 /// 0.2%.
 pub(crate) fn optimize(bvh: Bvh, rounds: Rounds) -> Bvh {
     let root_area = f64::from(bvh.bounds().half_area());
-    if bvh.pairs.len() < 2 || !(root_area > 0.0 && root_area.is_finite()) {
+    let measurable = root_area > 0.0 && root_area.is_finite();
+    if bvh.pairs.len() < 2 || bvh.prim_ids.is_empty() || !measurable {
         return bvh;
     }
     let limit = bvh.depth().clamp(SHALLOW, STACK_SIZE);
