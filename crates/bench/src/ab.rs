@@ -1,0 +1,574 @@
+//! `raymesh-ab [--baseline OTHER] MESH [--rays RAYS.npy | --workload W
+//! --size N] [--accel A] [--query closest,any-hit] [--packets | --stream]
+//! [--chunk C] [--rounds R] [--instances K] [--spatial-splits [F]]
+//! [--optimize] [--json]`:
+//! two builds of raymesh on the same rays, taking turns chunk by chunk, so
+//! that a change of a few percent can be told from this machine's drift.
+//!
+//! Each build runs as child processes (`raymesh-ab --serve ...`, this
+//! file's other half) that build the scene once and then trace the chunks
+//! the parent names, one at a time, on one thread, answering with the time
+//! it took and a checksum of the hits. The parent sends every chunk to both
+//! builds, in turn (first one, then the other, then the other first for
+//! the next chunk), so both see the machine in the same state; a whole
+//! run's speeds drift by ±10–20% on the shared VMs this project runs on,
+//! and a comparison of two separate runs cannot resolve a 3% change.
+//! The checksums say whether both builds returned the same hits, bit for
+//! bit. Without `--baseline` the build is compared with itself: the spread
+//! of that run is the noise floor.
+
+use anyhow::{bail, ensure, Context, Result};
+use clap::Parser;
+use raymesh::npy;
+use raymesh::workload::{make_rays, Workload};
+use raymesh_accel::{AccelKind, BareHit, BuildConfig, Ray, Scene, TriangleMesh, Triangles, LANES};
+use raymesh_mesh::io::read_mesh;
+use serde::Serialize;
+use std::io::{BufRead, BufReader, BufWriter, Write};
+use std::path::{Path, PathBuf};
+use std::process::{Child, ChildStdin, ChildStdout, Command, Stdio};
+use std::time::Instant;
+
+/// What a child prints once its scene is built, before the first chunk;
+/// the parent checks it, so a baseline too old to serve fails clearly.
+const READY: &str = "raymesh-ab ready v1";
+
+/// Compares two builds of raymesh on the same rays, chunk by chunk.
+#[derive(Parser)]
+struct Args {
+    /// Mesh file.
+    mesh: PathBuf,
+    /// The other build's `raymesh-ab` binary (the baseline; build it from
+    /// the commit to compare with). Default: this binary itself, whose
+    /// comparison with itself shows the measurement's noise.
+    #[arg(long)]
+    baseline: Option<PathBuf>,
+    /// Rays from a file (BENCH.md's (N, 8) float32 .npy).
+    #[arg(long, conflicts_with = "workload")]
+    rays: Option<PathBuf>,
+    /// A workload of BENCH.md to generate instead (primary, random,
+    /// diffuse, shadow).
+    #[arg(long, default_value = "random")]
+    workload: Workload,
+    /// Image size of the generated workload.
+    #[arg(long, default_value_t = 1024)]
+    size: u32,
+    /// Structure to build.
+    #[arg(long, default_value = "bvh")]
+    accel: AccelKind,
+    /// Queries to compare, comma-separated: closest, any-hit.
+    #[arg(long, default_value = "closest,any-hit")]
+    query: String,
+    /// Closest hits eight consecutive rays at a time (`Scene::intersect8_bare`).
+    #[arg(long, conflicts_with = "stream")]
+    packets: bool,
+    /// Each chunk traced as streams of 1,024 rays (`Scene::stream_bare`).
+    #[arg(long)]
+    stream: bool,
+    /// Rays a chunk: each build traces a chunk, then the other.
+    #[arg(long, default_value_t = 65536)]
+    chunk: usize,
+    /// Passes over all the rays (after one untimed pass).
+    #[arg(long, default_value_t = 3)]
+    rounds: usize,
+    /// Processes of each build, taking the chunks in turn: where a
+    /// process's data happens to lie in memory changes its speed by a
+    /// few percent (two runs of one binary differ so), and several
+    /// processes average that out.
+    #[arg(long, default_value_t = 2)]
+    instances: usize,
+    /// Spatial splits, as `raymesh raycast --spatial-splits`.
+    #[arg(long, value_name = "FRACTION", num_args = 0..=1, default_missing_value = "0.25")]
+    spatial_splits: Option<f32>,
+    /// Reinsertion optimization, as `raymesh raycast --optimize`.
+    #[arg(long)]
+    optimize: bool,
+    /// One JSON object a query instead of the text report.
+    #[arg(long)]
+    json: bool,
+    /// Internal: run as a child that traces the chunks it is sent.
+    #[arg(long, hide = true)]
+    serve: bool,
+}
+
+/// A query the builds are compared on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Query {
+    Closest,
+    AnyHit,
+}
+
+impl Query {
+    fn name(self) -> &'static str {
+        match self {
+            Self::Closest => "closest",
+            Self::AnyHit => "any-hit",
+        }
+    }
+
+    fn parse(s: &str) -> Result<Self> {
+        match s.trim() {
+            "closest" => Ok(Self::Closest),
+            "any-hit" | "any" => Ok(Self::AnyHit),
+            other => bail!("unknown query '{other}'; expected closest or any-hit"),
+        }
+    }
+}
+
+/// One query's comparison (`--json`).
+#[derive(Serialize)]
+struct Report {
+    mesh: String,
+    accel: &'static str,
+    rays: usize,
+    chunks: usize,
+    rounds: usize,
+    query: &'static str,
+    mode: &'static str,
+    baseline_mrays_per_s: f64,
+    build_mrays_per_s: f64,
+    /// Total time of the baseline over total time of this build: above 1
+    /// when this build is faster.
+    speedup: f64,
+    /// The same ratio over each two chunks (one with each build first):
+    /// median and quartiles.
+    chunk_median: f64,
+    chunk_q1: f64,
+    chunk_q3: f64,
+    /// Whether both builds returned the same hits, bit for bit.
+    same_hits: bool,
+}
+
+fn main() -> Result<()> {
+    let args = Args::parse();
+    if args.serve {
+        return serve(&args);
+    }
+    compare(&args)
+}
+
+/// The scene both halves build from the arguments.
+fn build_scene(args: &Args) -> Result<Scene<Triangles>> {
+    let mesh = read_mesh(&args.mesh)?;
+    let tm = TriangleMesh::new(mesh.positions.clone(), mesh.triangles());
+    let config = BuildConfig {
+        spatial_splits: args.spatial_splits.unwrap_or(0.0),
+        optimize: args.optimize,
+        ..BuildConfig::default()
+    };
+    Ok(Scene::from_mesh_with(&tm, args.accel, &config))
+}
+
+/// The child: builds the scene, reads the rays, then answers each line
+/// `trace FIRST END QUERY` with `NANOSECONDS CHECKSUM` until `quit` or the
+/// end of its input.
+fn serve(args: &Args) -> Result<()> {
+    let rays_path = args.rays.as_deref().context("--serve needs --rays")?;
+    let rays = npy::read_rays(rays_path)?;
+    let scene = build_scene(args)?;
+    let mut out = std::io::stdout().lock();
+    writeln!(out, "{READY} {}", rays.len())?;
+    out.flush()?;
+    for line in std::io::stdin().lock().lines() {
+        let line = line?;
+        let words: Vec<&str> = line.split_whitespace().collect();
+        match words[..] {
+            ["quit"] => break,
+            ["trace", first, end, query] => {
+                let (first, end): (usize, usize) = (first.parse()?, end.parse()?);
+                ensure!(
+                    first <= end && end <= rays.len(),
+                    "chunk {first}..{end} out of range"
+                );
+                let query = Query::parse(query)?;
+                let start = Instant::now();
+                let sum = trace(&scene, &rays[first..end], query, args.packets, args.stream);
+                let ns = start.elapsed().as_nanos();
+                writeln!(out, "{ns} {sum:016x}")?;
+                out.flush()?;
+            }
+            _ => bail!("unknown request '{line}'"),
+        }
+    }
+    Ok(())
+}
+
+/// Traces `rays` on this thread and returns a checksum of the hits.
+fn trace(scene: &Scene<Triangles>, rays: &[Ray], query: Query, packets: bool, stream: bool) -> u64 {
+    let mut sum = Checksum::default();
+    if stream {
+        let mut hits = vec![None; rays.len().min(1024)];
+        for part in rays.chunks(1024) {
+            let hits = &mut hits[..part.len()];
+            scene.stream_bare(part, query == Query::AnyHit, hits);
+            hits.iter().for_each(|h| sum.add(*h));
+        }
+    } else if packets && query == Query::Closest {
+        for part in rays.chunks(LANES) {
+            if let Ok(packet) = <&[Ray; LANES]>::try_from(part) {
+                scene
+                    .intersect8_bare(packet)
+                    .into_iter()
+                    .for_each(|h| sum.add(h));
+            } else {
+                part.iter().for_each(|r| sum.add(scene.intersect_bare(r)));
+            }
+        }
+    } else {
+        for r in rays {
+            sum.add(match query {
+                Query::Closest => scene.intersect_bare(r),
+                Query::AnyHit => scene.any_hit_bare(r),
+            });
+        }
+    }
+    sum.0
+}
+
+/// FNV-1a over each ray's hit (primitive and the bits of `t`, `u`, `v`).
+struct Checksum(u64);
+
+impl Default for Checksum {
+    fn default() -> Self {
+        Self(0xcbf2_9ce4_8422_2325)
+    }
+}
+
+impl Checksum {
+    fn add(&mut self, h: Option<BareHit>) {
+        let words = h.map_or([u32::MAX; 4], |h| {
+            [h.prim, h.t.to_bits(), h.u.to_bits(), h.v.to_bits()]
+        });
+        for w in words {
+            for b in w.to_le_bytes() {
+                self.0 = (self.0 ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3);
+            }
+        }
+    }
+}
+
+/// A running child and its pipes.
+struct Server {
+    name: &'static str,
+    child: Child,
+    input: BufWriter<ChildStdin>,
+    output: BufReader<ChildStdout>,
+}
+
+impl Server {
+    /// Starts `binary --serve` with the comparison's settings and waits
+    /// until it has built its scene.
+    fn start(
+        name: &'static str,
+        binary: &Path,
+        args: &Args,
+        rays: &Path,
+        n: usize,
+    ) -> Result<Self> {
+        let mut cmd = Command::new(binary);
+        cmd.arg("--serve")
+            .arg(&args.mesh)
+            .arg("--rays")
+            .arg(rays)
+            .arg("--accel")
+            .arg(args.accel.name());
+        if let Some(f) = args.spatial_splits {
+            cmd.arg(format!("--spatial-splits={f}"));
+        }
+        for (on, flag) in [
+            (args.optimize, "--optimize"),
+            (args.packets, "--packets"),
+            (args.stream, "--stream"),
+        ] {
+            if on {
+                cmd.arg(flag);
+            }
+        }
+        let mut child = cmd
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .spawn()
+            .with_context(|| format!("starting the {name} build, {}", binary.display()))?;
+        let input = BufWriter::new(child.stdin.take().context("child stdin")?);
+        let output = BufReader::new(child.stdout.take().context("child stdout")?);
+        let mut server = Self {
+            name,
+            child,
+            input,
+            output,
+        };
+        let line = server.read_line()?;
+        let expected = format!("{READY} {n}");
+        if line != expected {
+            bail!(
+                "the {name} build ({}) answered '{line}' where '{expected}' was expected: \
+                 is it a raymesh-ab binary, of this version or later?",
+                binary.display()
+            );
+        }
+        Ok(server)
+    }
+
+    fn read_line(&mut self) -> Result<String> {
+        let mut line = String::new();
+        let n = self.output.read_line(&mut line)?;
+        if n == 0 {
+            let status = self.child.wait()?;
+            bail!(
+                "the {} build stopped ({status}); its error is above",
+                self.name
+            );
+        }
+        Ok(line.trim_end().to_string())
+    }
+
+    /// Traces rays `first..end` and returns (nanoseconds, checksum).
+    fn trace(&mut self, first: usize, end: usize, query: Query) -> Result<(u64, u64)> {
+        writeln!(self.input, "trace {first} {end} {}", query.name())?;
+        self.input.flush()?;
+        let line = self.read_line()?;
+        let parse = || -> Option<(u64, u64)> {
+            let (ns, sum) = line.split_once(' ')?;
+            Some((ns.parse().ok()?, u64::from_str_radix(sum, 16).ok()?))
+        };
+        parse().with_context(|| format!("the {} build answered '{line}'", self.name))
+    }
+
+    fn quit(mut self) -> Result<()> {
+        writeln!(self.input, "quit")?;
+        self.input.flush()?;
+        drop(self.input);
+        let status = self.child.wait()?;
+        ensure!(
+            status.success(),
+            "the {} build exited with {status}",
+            self.name
+        );
+        Ok(())
+    }
+}
+
+/// A temporary file removed when dropped.
+struct TempFile(PathBuf);
+
+impl Drop for TempFile {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.0);
+    }
+}
+
+/// The `q`-quantile of sorted values (nearest rank).
+fn quantile(sorted: &[f64], q: f64) -> f64 {
+    sorted[((sorted.len() - 1) as f64 * q).round() as usize]
+}
+
+fn compare(args: &Args) -> Result<()> {
+    ensure!(args.chunk > 0, "--chunk must be at least 1");
+    ensure!(args.rounds > 0, "--rounds must be at least 1");
+    ensure!(args.instances > 0, "--instances must be at least 1");
+    let queries: Vec<Query> = args
+        .query
+        .split(',')
+        .map(Query::parse)
+        .collect::<Result<_>>()?;
+    let this = std::env::current_exe().context("finding this binary")?;
+    let baseline = args.baseline.clone().unwrap_or_else(|| this.clone());
+    // The rays: the given file, or the workload written to a temporary
+    // file that both children read.
+    let (rays_path, _temp, source) = match &args.rays {
+        Some(p) => (p.clone(), None, p.display().to_string()),
+        None => {
+            let mesh = read_mesh(&args.mesh)?;
+            let tm = TriangleMesh::new(mesh.positions.clone(), mesh.triangles());
+            let scene = Scene::build(tm, AccelKind::FASTEST_BVH);
+            let rays = make_rays(args.workload, &scene, args.size, 1);
+            let path = std::env::temp_dir().join(format!(
+                "raymesh-ab-{}-{}.npy",
+                std::process::id(),
+                args.workload.name()
+            ));
+            let mut w = BufWriter::new(
+                std::fs::File::create(&path)
+                    .with_context(|| format!("creating {}", path.display()))?,
+            );
+            npy::write_rays(&mut w, &rays)?;
+            w.flush()?;
+            let source = format!("{} {}", args.workload.name(), args.size);
+            (path.clone(), Some(TempFile(path)), source)
+        }
+    };
+    let n = npy::read_rays(&rays_path)?.len();
+    ensure!(n > 0, "{}: no rays", rays_path.display());
+    // `servers[i]` is instance `i / 2` of the baseline (even `i`) or of
+    // this build (odd `i`).
+    let mut servers = Vec::new();
+    for _ in 0..args.instances {
+        servers.push(Server::start("baseline", &baseline, args, &rays_path, n)?);
+        servers.push(Server::start("this", &this, args, &rays_path, n)?);
+    }
+    let chunks: Vec<(usize, usize)> = (0..n)
+        .step_by(args.chunk)
+        .map(|f| (f, (f + args.chunk).min(n)))
+        .collect();
+    let mode = if args.stream {
+        "stream"
+    } else if args.packets {
+        "packets"
+    } else {
+        "single"
+    };
+    if !args.json {
+        println!(
+            "{}: {} rays ({source}), {}, {mode}; {} chunks of up to {}, {} rounds, \
+             {} processes of each build taking turns",
+            args.mesh.display(),
+            n,
+            args.accel.name(),
+            chunks.len(),
+            args.chunk,
+            args.rounds,
+            args.instances
+        );
+    }
+    for &query in &queries {
+        // One untimed pass each: pages faulted in, caches and predictors warm.
+        for s in &mut servers {
+            s.trace(0, n, query)?;
+        }
+        let mut total = [0u64; 2];
+        let mut ratios = Vec::new();
+        let mut same = true;
+        let mut turn = 0usize;
+        let mut pair = [0u64; 2];
+        for _ in 0..args.rounds {
+            for &(first, end) in &chunks {
+                let mut t = [0u64; 2];
+                let mut sums = [0u64; 2];
+                let order = if turn.is_multiple_of(2) {
+                    [0, 1]
+                } else {
+                    [1, 0]
+                };
+                // Each turn goes to the next process of each build, so
+                // that with two or more no process traces twice in a row
+                // (its data still in the caches) and with one each build
+                // does so equally often.
+                let base = 2 * (turn % args.instances);
+                turn += 1;
+                for k in order {
+                    (t[k], sums[k]) = servers[base + k].trace(first, end, query)?;
+                }
+                same &= sums[0] == sums[1];
+                total[0] += t[0];
+                total[1] += t[1];
+                // Turns go in pairs, one with each build first, so that
+                // whatever going first or second does to a chunk's time
+                // (the other process's data in the caches) cancels.
+                pair[0] += t[0];
+                pair[1] += t[1];
+                if turn.is_multiple_of(2) {
+                    ratios.push(pair[0].max(1) as f64 / pair[1].max(1) as f64);
+                    pair = [0; 2];
+                }
+            }
+        }
+        if pair != [0; 2] {
+            ratios.push(pair[0].max(1) as f64 / pair[1].max(1) as f64);
+        }
+        ratios.sort_by(f64::total_cmp);
+        let rate = |ns: u64| (n * args.rounds) as f64 / (ns.max(1) as f64 * 1e-9) / 1e6;
+        let report = Report {
+            mesh: args.mesh.display().to_string(),
+            accel: args.accel.name(),
+            rays: n,
+            chunks: chunks.len(),
+            rounds: args.rounds,
+            query: query.name(),
+            mode,
+            baseline_mrays_per_s: rate(total[0]),
+            build_mrays_per_s: rate(total[1]),
+            speedup: total[0] as f64 / total[1].max(1) as f64,
+            chunk_median: quantile(&ratios, 0.5),
+            chunk_q1: quantile(&ratios, 0.25),
+            chunk_q3: quantile(&ratios, 0.75),
+            same_hits: same,
+        };
+        if args.json {
+            println!("{}", serde_json::to_string(&report)?);
+        } else {
+            println!(
+                "  {:<8} baseline {:.3} Mrays/s, this build {:.3}: {:.3}x (by pairs of turns: median {:.3}, quartiles {:.3}..{:.3}); {}",
+                query.name(),
+                report.baseline_mrays_per_s,
+                report.build_mrays_per_s,
+                report.speedup,
+                report.chunk_median,
+                report.chunk_q1,
+                report.chunk_q3,
+                if same { "the same hits" } else { "HITS DIFFER" }
+            );
+        }
+    }
+    for s in servers {
+        s.quit()?;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use raymesh::workload::unpack_ray;
+
+    #[test]
+    fn checksums_tell_hits_apart() {
+        let hit = |t: f32| {
+            Some(BareHit {
+                t,
+                prim: 3,
+                u: 0.25,
+                v: 0.5,
+            })
+        };
+        let sum = |hits: &[Option<BareHit>]| {
+            let mut c = Checksum::default();
+            hits.iter().for_each(|h| c.add(*h));
+            c.0
+        };
+        assert_eq!(sum(&[hit(1.0), None]), sum(&[hit(1.0), None]));
+        assert_ne!(sum(&[hit(1.0), None]), sum(&[None, hit(1.0)]));
+        assert_ne!(
+            sum(&[hit(1.0)]),
+            sum(&[hit(f32::from_bits(1.0f32.to_bits() + 1))])
+        );
+        assert_ne!(sum(&[hit(1.0)]), sum(&[None]));
+    }
+
+    #[test]
+    fn every_mode_traces_the_same_closest_hits() {
+        let mesh = read_mesh(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../tests/data/elephant-with-holes.off"
+        ))
+        .unwrap();
+        let tm = TriangleMesh::new(mesh.positions.clone(), mesh.triangles());
+        let scene = Scene::from_mesh_with(&tm, AccelKind::Bvh8, &BuildConfig::default());
+        let rays: Vec<Ray> = make_rays(Workload::Random, &scene, 21, 1)
+            .into_iter()
+            .map(unpack_ray)
+            .collect();
+        let single = trace(&scene, &rays, Query::Closest, false, false);
+        assert_eq!(single, trace(&scene, &rays, Query::Closest, true, false));
+        assert_eq!(single, trace(&scene, &rays, Query::Closest, false, true));
+        assert_ne!(single, Checksum::default().0, "the rays hit something");
+    }
+
+    #[test]
+    fn quantiles_take_the_nearest_rank() {
+        let v = [1.0, 2.0, 3.0, 4.0, 5.0];
+        assert_eq!(quantile(&v, 0.5), 3.0);
+        assert_eq!(quantile(&v, 0.25), 2.0);
+        assert_eq!(quantile(&v, 0.75), 4.0);
+        assert_eq!(quantile(&[7.0], 0.5), 7.0);
+    }
+}

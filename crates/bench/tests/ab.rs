@@ -1,0 +1,113 @@
+//! `raymesh-ab` end to end: a build compared with itself, and baselines
+//! that cannot serve.
+
+use std::process::Command;
+
+const MESH: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/../../tests/data/elephant-with-holes.off"
+);
+
+fn ab(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_raymesh-ab"))
+        .arg(MESH)
+        .args(args)
+        .output()
+        .expect("raymesh-ab runs")
+}
+
+#[test]
+fn a_build_compared_with_itself_returns_the_same_hits() {
+    for mode in [&[][..], &["--packets"], &["--stream"]] {
+        let mut args = vec!["--workload", "random", "--size", "24", "--chunk", "100"];
+        args.extend(["--rounds", "1", "--accel", "bvh-binned", "--json"]);
+        args.extend(mode);
+        let out = ab(&args);
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            out.status.success(),
+            "{mode:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let reports: Vec<serde_json::Value> = stdout
+            .lines()
+            .map(|l| serde_json::from_str(l).expect("a JSON line"))
+            .collect();
+        let queries: Vec<&str> = reports
+            .iter()
+            .map(|r| r["query"].as_str().unwrap())
+            .collect();
+        assert_eq!(queries, ["closest", "any-hit"], "{mode:?}");
+        for r in &reports {
+            assert_eq!(r["rays"], 576);
+            // 576 rays in chunks of 100: six chunks, the last of 76.
+            assert_eq!(r["chunks"], 6);
+            assert_eq!(r["same_hits"], true, "{r}");
+            let speedup = r["speedup"].as_f64().unwrap();
+            assert!(speedup.is_finite() && speedup > 0.0, "{r}");
+            assert!(r["chunk_q1"].as_f64() <= r["chunk_q3"].as_f64(), "{r}");
+        }
+    }
+}
+
+#[test]
+fn a_rays_file_is_read_as_given() {
+    let dir = std::env::temp_dir().join(format!("raymesh-ab-test-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let rays = dir.join("rays.npy");
+    let mut file = std::fs::File::create(&rays).unwrap();
+    raymesh::npy::write_rays(
+        &mut file,
+        &[
+            [0.0, 0.0, -5.0, 0.0, 0.0, 0.0, 1.0, f32::INFINITY],
+            [0.0, 0.0, 5.0, 0.0, 0.0, 0.0, -1.0, f32::INFINITY],
+            [5.0, 5.0, 5.0, 0.0, 1.0, 0.0, 0.0, f32::INFINITY],
+        ],
+    )
+    .unwrap();
+    drop(file);
+    let out = ab(&[
+        "--rays",
+        rays.to_str().unwrap(),
+        "--query",
+        "closest",
+        "--rounds",
+        "2",
+    ]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.contains("3 rays"), "{stdout}");
+    assert!(stdout.contains("the same hits"), "{stdout}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn baselines_that_cannot_serve_are_named() {
+    let out = ab(&["--baseline", "/nonexistent/raymesh-ab", "--size", "8"]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("starting the baseline build"), "{err}");
+    // A program that is not raymesh-ab: it answers nothing.
+    let out = ab(&["--baseline", "/bin/true", "--size", "8"]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("the baseline build stopped"), "{err}");
+}
+
+#[test]
+fn bad_settings_are_refused() {
+    for (args, what) in [
+        (&["--query", "nearest"][..], "unknown query 'nearest'"),
+        (&["--chunk", "0"], "--chunk must be at least 1"),
+        (&["--rounds", "0"], "--rounds must be at least 1"),
+    ] {
+        let out = ab(args);
+        assert!(!out.status.success(), "{args:?}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(what), "{args:?}: {err}");
+    }
+}
