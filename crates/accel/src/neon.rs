@@ -22,7 +22,7 @@ use crate::bvh::{BoxRay, WideNode};
 use crate::prims::BlockHits;
 use crate::simd::{block_at, GROUP, GROUP_SLOTS};
 use q::F;
-use raymesh_geometry::{Ray, ROBUST_EXIT};
+use raymesh_geometry::Ray;
 
 /// Safe wrappers of the NEON intrinsics the kernels use. SAFETY (every
 /// `unsafe` block here): the module compiles only where the build enables
@@ -114,7 +114,6 @@ pub(crate) fn slab8<const W: usize>(
 ) -> u32 {
     assert!(W == 8);
     let (lower, upper) = n.planes();
-    let pad = q::splat(ROBUST_EXIT);
     let mut mask = 0;
     for half in [0, 4] {
         let mut e = q::splat(r.tmin);
@@ -128,8 +127,9 @@ pub(crate) fn slab8<const W: usize>(
             };
             let o = q::splat(r.origin[a]);
             let inv = q::splat(r.inv_dir[a]);
+            let inv_exit = q::splat(r.inv_exit[a]);
             let lo = q::mul(q::sub(q::load(near, half), o), inv);
-            let hi = q::mul(q::mul(q::sub(q::load(far, half), o), inv), pad);
+            let hi = q::mul(q::sub(q::load(far, half), o), inv_exit);
             e = max_ns(lo, e);
             x = min_ns(hi, x);
         }

@@ -20,7 +20,8 @@
 
 use crate::{BlockHits, PrimHit};
 use raymesh_geometry::{
-    intersect_triangle, max_nan_second as max_ns, min_nan_second as min_ns, Ray, Vec3, ROBUST_EXIT,
+    exit_reciprocal, intersect_triangle, max_nan_second as max_ns, min_nan_second as min_ns, Ray,
+    Vec3,
 };
 
 /// Rays in a packet: one per SIMD lane of AVX.
@@ -37,6 +38,8 @@ pub struct Packet8 {
     origin: [[f32; LANES]; 3],
     /// Reciprocal directions by axis.
     inv_dir: [[f32; LANES]; 3],
+    /// Their [`exit_reciprocal`]s, which exit distances are computed with.
+    inv_exit: [[f32; LANES]; 3],
     /// Lower ends of the intervals.
     pub(crate) tmin: [f32; LANES],
     /// Which axes run backwards (the same for every lane).
@@ -63,6 +66,9 @@ pub(crate) struct Frustum {
     pub(crate) near_origin: [f32; 3],
     pub(crate) far_origin: [f32; 3],
     pub(crate) inv: [[f32; 2]; 3],
+    /// The least and greatest [`exit_reciprocal`] (those of `inv`'s ends:
+    /// rounding is monotone).
+    pub(crate) inv_exit: [[f32; 2]; 3],
     pub(crate) tmin: f32,
 }
 
@@ -105,6 +111,7 @@ impl Packet8 {
             near_origin: [0.0; 3],
             far_origin: [0.0; 3],
             inv: [[0.0; 2]; 3],
+            inv_exit: [[0.0; 2]; 3],
             tmin: f32::INFINITY,
         };
         for a in 0..3 {
@@ -120,14 +127,17 @@ impl Packet8 {
             (frustum.near_origin[a], frustum.far_origin[a]) =
                 if neg[a] { (o_lo, o_hi) } else { (o_hi, o_lo) };
             frustum.inv[a] = [i_lo, i_hi];
+            frustum.inv_exit[a] = [exit_reciprocal(i_lo), exit_reciprocal(i_hi)];
         }
         for &t in &tmin {
             frustum.tmin = frustum.tmin.min(t);
         }
+        let inv_exit = inv_dir.map(|row| row.map(exit_reciprocal));
         Some(Self {
             rays: *rays,
             origin,
             inv_dir,
+            inv_exit,
             tmin,
             neg,
             k,
@@ -183,7 +193,14 @@ pub(crate) fn slab_avx(
     far: [f32; 3],
     bound: &[f32; LANES],
 ) -> (u32, [f32; LANES]) {
-    crate::simd::packet_slab8(avx, [&p.origin, &p.inv_dir], &p.tmin, near, far, bound)
+    crate::simd::packet_slab8(
+        avx,
+        [&p.origin, &p.inv_dir, &p.inv_exit],
+        &p.tmin,
+        near,
+        far,
+        bound,
+    )
 }
 
 /// A box's near and far plane on each axis for the packet's octant.
@@ -214,7 +231,7 @@ pub(crate) fn slab_lanes(
         let (near, far) = (near[a], far[a]);
         for i in 0..LANES {
             let lo = (near - p.origin[a][i]) * p.inv_dir[a][i];
-            let hi = (far - p.origin[a][i]) * p.inv_dir[a][i] * ROBUST_EXIT;
+            let hi = (far - p.origin[a][i]) * p.inv_exit[a][i];
             e[i] = max_ns(lo, e[i]);
             x[i] = min_ns(hi, x[i]);
         }
@@ -249,11 +266,12 @@ pub(crate) fn frustum<const W: usize>(
             (&min[a], &max[a])
         };
         let [i0, i1] = f.inv[a];
+        let [x0, x1] = f.inv_exit[a];
         for c in 0..W {
             let d = near[c] - f.near_origin[a];
             let lo = min_ns(d * i0, d * i1);
             let d = far[c] - f.far_origin[a];
-            let hi = max_ns(d * i0, d * i1) * ROBUST_EXIT;
+            let hi = max_ns(d * x0, d * x1);
             e[c] = max_ns(lo, e[c]);
             x[c] = min_ns(hi, x[c]);
         }

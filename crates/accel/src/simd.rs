@@ -191,7 +191,6 @@ pub(crate) fn slab8<const W: usize>(
 #[inline]
 unsafe fn slab8_avx(node: *const f32, r: &BoxRay, bound: f32, t: *mut f32) -> u32 {
     use std::arch::x86_64::*;
-    let exit_pad = _mm256_set1_ps(raymesh_geometry::ROBUST_EXIT);
     let mut lo = [_mm256_setzero_ps(); 3];
     let mut hi = [_mm256_setzero_ps(); 3];
     for a in 0..3 {
@@ -200,11 +199,9 @@ unsafe fn slab8_avx(node: *const f32, r: &BoxRay, bound: f32, t: *mut f32) -> u3
         let (near, far) = (r.near[a] & 0x38, r.far[a] & 0x38);
         let o = _mm256_set1_ps(r.origin[a]);
         let inv = _mm256_set1_ps(r.inv_dir[a]);
+        let inv_exit = _mm256_set1_ps(r.inv_exit[a]);
         lo[a] = _mm256_mul_ps(_mm256_sub_ps(_mm256_loadu_ps(node.add(near)), o), inv);
-        hi[a] = _mm256_mul_ps(
-            _mm256_mul_ps(_mm256_sub_ps(_mm256_loadu_ps(node.add(far)), o), inv),
-            exit_pad,
-        );
+        hi[a] = _mm256_mul_ps(_mm256_sub_ps(_mm256_loadu_ps(node.add(far)), o), inv_exit);
     }
     // `max_ps(a, b)` is `a > b ? a : b`, returning `b` when either is NaN:
     // exactly `max_nan_second(a, b)`, nested in the fallback's order.
@@ -470,10 +467,7 @@ unsafe fn pair_slab_avx(pair: &NodePair, r: &PairRay, bound: f32) -> (u32, f32, 
     let o = _mm256_load_ps(r.origin.as_ptr());
     let inv = _mm256_load_ps(r.inv_dir.as_ptr());
     let tn = _mm256_mul_ps(_mm256_sub_ps(near, o), inv);
-    let tf = _mm256_mul_ps(
-        _mm256_mul_ps(_mm256_sub_ps(far, o), inv),
-        _mm256_set1_ps(raymesh_geometry::ROBUST_EXIT),
-    );
+    let tf = _mm256_mul_ps(_mm256_sub_ps(far, o), _mm256_load_ps(r.inv_exit.as_ptr()));
     // z, then y, then x, into the accumulator: the scalar nesting.
     // max_ps(a, b) is max_nan_second(a, b); min_ps likewise.
     let mut e = _mm256_set1_ps(r.tmin);
@@ -493,7 +487,9 @@ unsafe fn pair_slab_avx(pair: &NodePair, r: &PairRay, bound: f32) -> (u32, f32, 
 }
 
 /// The slab test of one box against the eight rays of a packet in AVX
-/// (one ray a lane, the box's `near` and `far` planes shared), on a CPU
+/// (one ray a lane, the box's `near` and `far` planes shared; `rows` the
+/// lanes' origins, reciprocal directions and their
+/// [`raymesh_geometry::exit_reciprocal`]s, by axis), on a CPU
 /// with AVX2 (the `Avx2` proof): the same entry distances and mask as
 /// [`crate::packet::slab_lanes`], bit for bit (`packet.rs`'s tests compare
 /// them).
@@ -501,7 +497,7 @@ unsafe fn pair_slab_avx(pair: &NodePair, r: &PairRay, bound: f32) -> (u32, f32, 
 #[inline(always)]
 pub(crate) fn packet_slab8(
     _avx: Avx2,
-    rows: [&[[f32; 8]; 3]; 2],
+    rows: [&[[f32; 8]; 3]; 3],
     tmin: &[f32; 8],
     near: [f32; 3],
     far: [f32; 3],
@@ -520,7 +516,7 @@ pub(crate) fn packet_slab8(
 #[target_feature(enable = "avx2")]
 #[inline]
 unsafe fn packet_slab8_avx(
-    [origin, inv_dir]: [&[[f32; 8]; 3]; 2],
+    [origin, inv_dir, inv_exit]: [&[[f32; 8]; 3]; 3],
     tmin: &[f32; 8],
     near: [f32; 3],
     far: [f32; 3],
@@ -528,18 +524,15 @@ unsafe fn packet_slab8_avx(
     out: &mut [f32; 8],
 ) -> u32 {
     use std::arch::x86_64::*;
-    let pad = _mm256_set1_ps(raymesh_geometry::ROBUST_EXIT);
     let mut e = _mm256_loadu_ps(tmin.as_ptr());
     let mut x = _mm256_loadu_ps(bound.as_ptr());
     // z first, as the portable loop nests it.
     for a in (0..3).rev() {
         let o = _mm256_loadu_ps(origin[a].as_ptr());
         let inv = _mm256_loadu_ps(inv_dir[a].as_ptr());
+        let inv_exit = _mm256_loadu_ps(inv_exit[a].as_ptr());
         let lo = _mm256_mul_ps(_mm256_sub_ps(_mm256_set1_ps(near[a]), o), inv);
-        let hi = _mm256_mul_ps(
-            _mm256_mul_ps(_mm256_sub_ps(_mm256_set1_ps(far[a]), o), inv),
-            pad,
-        );
+        let hi = _mm256_mul_ps(_mm256_sub_ps(_mm256_set1_ps(far[a]), o), inv_exit);
         // max_ps(a, b) is max_nan_second(a, b); min_ps likewise.
         e = _mm256_max_ps(lo, e);
         x = _mm256_min_ps(hi, x);
@@ -578,7 +571,6 @@ unsafe fn frustum8_avx(
     bound: f32,
 ) -> u32 {
     use std::arch::x86_64::*;
-    let pad = _mm256_set1_ps(raymesh_geometry::ROBUST_EXIT);
     let mut e = _mm256_set1_ps(f.tmin);
     let mut x = _mm256_set1_ps(bound);
     for a in (0..3).rev() {
@@ -588,13 +580,14 @@ unsafe fn frustum8_avx(
             (min[a], max[a])
         };
         let (i0, i1) = (_mm256_set1_ps(f.inv[a][0]), _mm256_set1_ps(f.inv[a][1]));
+        let (x0, x1) = (
+            _mm256_set1_ps(f.inv_exit[a][0]),
+            _mm256_set1_ps(f.inv_exit[a][1]),
+        );
         let d = _mm256_sub_ps(_mm256_loadu_ps(near), _mm256_set1_ps(f.near_origin[a]));
         let lo = _mm256_min_ps(_mm256_mul_ps(d, i0), _mm256_mul_ps(d, i1));
         let d = _mm256_sub_ps(_mm256_loadu_ps(far), _mm256_set1_ps(f.far_origin[a]));
-        let hi = _mm256_mul_ps(
-            _mm256_max_ps(_mm256_mul_ps(d, i0), _mm256_mul_ps(d, i1)),
-            pad,
-        );
+        let hi = _mm256_max_ps(_mm256_mul_ps(d, x0), _mm256_mul_ps(d, x1));
         e = _mm256_max_ps(lo, e);
         x = _mm256_min_ps(hi, x);
     }

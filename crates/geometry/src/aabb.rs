@@ -1,6 +1,6 @@
 //! Axis-aligned bounding boxes and the slab test.
 
-use crate::float::{max_nan_second, min_nan_second, ROBUST_EXIT};
+use crate::float::{exit_reciprocal, max_nan_second, min_nan_second};
 use crate::Ray;
 use glam::Vec3;
 
@@ -188,8 +188,9 @@ impl Aabb {
     /// an origin exactly on the slab's face is dropped by the NaN-ignoring
     /// `max`/`min` (the ray lies in the face: inside the closed box). Negative
     /// directions swap the slab's faces by sign. Rays that start inside report
-    /// an entry of `tmin`. The exit is padded by `1 + 2γ(3)` so that no hit
-    /// inside the box is lost to rounding (Ize 2013). Invalid rays (NaN
+    /// an entry of `tmin`. The exit is padded by `1 + 2γ(3)` (computed with
+    /// [`exit_reciprocal`]) so that no hit inside the box is lost to
+    /// rounding (Ize 2013). Invalid rays (NaN
     /// input) have an empty interval and never hit.
     #[inline]
     #[must_use]
@@ -214,15 +215,17 @@ impl Aabb {
     ) -> (f32, f32) {
         let (near, far) = self.near_far(octant);
         let tn = (near - origin) * inv_dir;
-        let tf = (far - origin) * inv_dir;
+        let inv_exit = Vec3::new(
+            exit_reciprocal(inv_dir.x),
+            exit_reciprocal(inv_dir.y),
+            exit_reciprocal(inv_dir.z),
+        );
+        let tf = (far - origin) * inv_exit;
         // `max_nan_second`/`min_nan_second` keep the accumulator when the
         // slab's value is NaN: a NaN slab constrains nothing. Each is one
         // maxss/minss, unlike f32::max, which adds NaN fix-ups.
         let entry = max_nan_second(tn.x, max_nan_second(tn.y, max_nan_second(tn.z, tmin)));
-        let exit = min_nan_second(
-            tf.x * ROBUST_EXIT,
-            min_nan_second(tf.y * ROBUST_EXIT, min_nan_second(tf.z * ROBUST_EXIT, tmax)),
-        );
+        let exit = min_nan_second(tf.x, min_nan_second(tf.y, min_nan_second(tf.z, tmax)));
         (entry, exit)
     }
 

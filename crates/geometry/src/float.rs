@@ -15,6 +15,22 @@ pub const fn gamma(n: i32) -> f32 {
 /// conservative under rounding (Ize, "Robust BVH Ray Traversal", JCGT 2013).
 pub const ROBUST_EXIT: f32 = 1.0 + 2.0 * gamma(3);
 
+/// The reciprocal direction component a slab test computes exit distances
+/// with: `inv_dir × ROBUST_EXIT`, once a ray, so that each exit is
+/// `(far - origin) × exit_reciprocal(inv_dir)`, padded without a
+/// multiplication of its own (one fewer a plane in every node test).
+///
+/// The padding still bounds the rounding (Ize 2013): entry and exit share
+/// the rounded reciprocal, whose error scales both alike; past it the exit
+/// is rounded three times (the difference, the padded reciprocal, the
+/// product) as it was (the difference, the product, the padding), and the
+/// entry twice.
+#[inline(always)]
+#[must_use]
+pub fn exit_reciprocal(inv_dir: f32) -> f32 {
+    inv_dir * ROBUST_EXIT
+}
+
 /// `a` if `a > b`, else `b`: returns `b` when `a` is NaN, in one `maxss`
 /// (unlike `f32::max`, which adds NaN fix-ups). Slab tests pass the
 /// accumulator as `b`, so a NaN slab constrains nothing.

@@ -15,7 +15,9 @@ mod sphere;
 mod triangle;
 
 pub use aabb::{cull_bound, Aabb};
-pub use float::{gamma, max_nan_second, min_nan_second, next_down, next_up, ROBUST_EXIT};
+pub use float::{
+    exit_reciprocal, gamma, max_nan_second, min_nan_second, next_down, next_up, ROBUST_EXIT,
+};
 pub use glam::{BVec4A, Mat3, Mat4, Quat, Vec2, Vec3, Vec3A, Vec4};
 pub use octahedral::{decode_unit, encode_unit, ZERO_UNIT};
 pub use ray::Ray;

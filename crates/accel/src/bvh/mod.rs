@@ -18,7 +18,8 @@ pub use wide::{BoxRay, Bvh4, Bvh8, Node4, Node8, WideBvh, WideNode};
 use crate::packet::{self, Packet8, LANES};
 use crate::{simd, test_each, AccelStats, Leaf, RayCounter};
 use raymesh_geometry::{
-    cull_bound, max_nan_second as max_ns, min_nan_second as min_ns, Aabb, Ray, Vec3, ROBUST_EXIT,
+    cull_bound, exit_reciprocal, max_nan_second as max_ns, min_nan_second as min_ns, Aabb, Ray,
+    Vec3,
 };
 use wide::{PacketEntry, Stack};
 
@@ -108,6 +109,8 @@ impl Node {
 struct PlaneRay {
     origin: [f32; 3],
     inv_dir: [f32; 3],
+    /// The [`exit_reciprocal`]s of `inv_dir`, for exit distances.
+    inv_exit: [f32; 3],
     near: [usize; 3],
     far: [usize; 3],
     tmin: f32,
@@ -121,6 +124,7 @@ impl PlaneRay {
         Self {
             origin: ray.origin().to_array(),
             inv_dir: ray.inv_dir().to_array(),
+            inv_exit: ray.inv_dir().to_array().map(exit_reciprocal),
             near,
             far: near.map(|i| i ^ 4),
             tmin: ray.tmin(),
@@ -133,12 +137,9 @@ impl PlaneRay {
     fn slab(&self, n: &Node, bound: f32) -> (f32, f32) {
         let p: &[f32; 8] = bytemuck::cast_ref(n);
         let near = |a: usize| (p[self.near[a] & 7] - self.origin[a]) * self.inv_dir[a];
-        let far = |a: usize| (p[self.far[a] & 7] - self.origin[a]) * self.inv_dir[a];
+        let far = |a: usize| (p[self.far[a] & 7] - self.origin[a]) * self.inv_exit[a];
         let entry = max_ns(near(0), max_ns(near(1), max_ns(near(2), self.tmin)));
-        let exit = min_ns(
-            far(0) * ROBUST_EXIT,
-            min_ns(far(1) * ROBUST_EXIT, min_ns(far(2) * ROBUST_EXIT, bound)),
-        );
+        let exit = min_ns(far(0), min_ns(far(1), min_ns(far(2), bound)));
         (entry, exit)
     }
 }
@@ -475,6 +476,7 @@ const _: () = assert!(STREAM_STACK.is_power_of_two() && STREAM_STACK >= STACK_SI
 pub(crate) struct PairRay {
     pub(crate) origin: [f32; 8],
     pub(crate) inv_dir: [f32; 8],
+    pub(crate) inv_exit: [f32; 8],
     pub(crate) neg: [u32; 8],
     pub(crate) tmin: f32,
     plane: PlaneRay,
@@ -489,6 +491,7 @@ impl PairRay {
         Self {
             origin: std::array::from_fn(|i| axis(i).map_or(0.0, |a| plane.origin[a])),
             inv_dir: std::array::from_fn(|i| axis(i).map_or(0.0, |a| plane.inv_dir[a])),
+            inv_exit: std::array::from_fn(|i| axis(i).map_or(0.0, |a| plane.inv_exit[a])),
             neg: std::array::from_fn(|i| {
                 axis(i).map_or(0, |a| 0u32.wrapping_sub((plane.near[a] >= 4) as u32))
             }),

@@ -13,7 +13,8 @@ use crate::prims::BLOCK;
 use crate::simd::{self, Avx2};
 use crate::{AccelStats, Leaf, RayCounter};
 use raymesh_geometry::{
-    cull_bound, max_nan_second as max_ns, min_nan_second as min_ns, Aabb, Ray, Vec3, ROBUST_EXIT,
+    cull_bound, exit_reciprocal, max_nan_second as max_ns, min_nan_second as min_ns, Aabb, Ray,
+    Vec3,
 };
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -1183,6 +1184,8 @@ fn range_within(bin: &Bvh, k: u32, levels: usize) -> Option<(u32, u32)> {
 pub struct BoxRay {
     pub(crate) origin: [f32; 3],
     pub(crate) inv_dir: [f32; 3],
+    /// The [`exit_reciprocal`]s of `inv_dir`, for exit distances.
+    pub(crate) inv_exit: [f32; 3],
     pub(crate) neg: [bool; 3],
     pub(crate) tmin: f32,
     /// For each axis, where the row of a node's bounds that holds the
@@ -1208,6 +1211,7 @@ impl BoxRay {
         Self {
             origin: ray.origin().to_array(),
             inv_dir: ray.inv_dir().to_array(),
+            inv_exit: ray.inv_dir().to_array().map(exit_reciprocal),
             neg: [oct & 1 != 0, oct & 2 != 0, oct & 4 != 0],
             tmin: ray.tmin(),
             near: [0, 1, 2].map(|a| 8 * (a + 3 * ((oct >> a) & 1))),
@@ -1237,7 +1241,7 @@ pub(crate) fn slab_scalar<const W: usize>(
         };
         for i in 0..W {
             lo[a][i] = (near[i] - r.origin[a]) * r.inv_dir[a];
-            hi[a][i] = (far[i] - r.origin[a]) * r.inv_dir[a] * ROBUST_EXIT;
+            hi[a][i] = (far[i] - r.origin[a]) * r.inv_exit[a];
         }
     }
     let mut mask = 0u32;
