@@ -513,10 +513,45 @@ impl<P: Primitives> Scene<P> {
     /// The primitive (in storage order) and hit of [`Self::any_hit_counted`].
     #[inline(always)]
     fn first_hit<C: RayCounter>(&self, ray: &Ray, counter: &mut C) -> Option<(u32, PrimHit)> {
-        if let (Some(WideRef::W8(bvh)), Some(avx)) = (self.wide_blocks(), Avx2::detect()) {
-            return self.any_avx2(bvh, avx, ray, counter);
+        match (self.wide_blocks(), Avx2::detect()) {
+            (Some(WideRef::W8(bvh)), Some(avx)) => self.any_avx2(bvh, avx, ray, counter),
+            (Some(WideRef::W2(bvh)), Some(avx)) => self.any_binary_avx2(bvh, avx, ray, counter),
+            _ => self.any_general(ray, counter),
         }
-        self.any_general(ray, counter)
+    }
+
+    /// [`Self::any_hit_counted`] over a binary BVH on a CPU with AVX2:
+    /// each leaf tested in an AVX2 region of its own, the block test
+    /// inlined there with its ray constants computed once a ray, as
+    /// [`Self::closest_general`] tests a binary BVH's leaves for closest
+    /// hits. A function of its own, so that the other walks' code does
+    /// not change with it.
+    #[inline(never)]
+    fn any_binary_avx2<C: RayCounter>(
+        &self,
+        bvh: &crate::Bvh,
+        avx: Avx2,
+        ray: &Ray,
+        counter: &mut C,
+    ) -> Option<(u32, PrimHit)> {
+        if !ray.is_valid() {
+            return None;
+        }
+        let mut found = None;
+        let pre = self.prims.block_ray(ray);
+        bvh.traverse_blocks(ray, counter, &mut |first, count| {
+            found = avx.run(|| {
+                self.leaf_any_by(first, count, ray.tmax(), |s, n, t| {
+                    self.prims.intersect_block_pre(avx, &pre, s, n, ray, t)
+                })
+            });
+            if found.is_some() {
+                f32::NEG_INFINITY
+            } else {
+                ray.tmax()
+            }
+        });
+        found
     }
 
     /// [`Self::any_hit_counted`] on every path but [`Self::any_avx2`]'s,
