@@ -1780,6 +1780,103 @@ mod tests {
         assert!(stack.pop().is_none());
     }
 
+    /// Every node test pads a box's exit as `(far - origin) ×
+    /// exit_reciprocal(inv_dir)`, bit for bit: a ray whose `tmin` is that
+    /// exit still enters the box, and one starting an ulp later does not.
+    /// (Only the entry mask shows an exit, and random boxes almost never
+    /// put an entry within an ulp of one: the other tests would not see
+    /// a kernel rounding its exit otherwise.)
+    #[test]
+    fn node_tests_exit_at_the_padded_reciprocal() {
+        use crate::bvh::{Node, NodePair, PairRay, PlaneRay};
+        use raymesh_geometry::next_up;
+        let mut seed = 7u64;
+        let mut f = move || {
+            seed = seed
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (seed >> 40) as f32 / (1u64 << 24) as f32 * 4.0 - 2.0
+        };
+        let mut checked = 0;
+        for _ in 0..2000 {
+            let boxes: Vec<Aabb> = (0..8)
+                .map(|_| {
+                    let p = Vec3::new(f(), f(), f());
+                    Aabb::new(p, p + Vec3::new(f().abs(), f().abs(), f().abs()))
+                })
+                .collect();
+            let node = Node8::from_boxes(&boxes);
+            let o = Vec3::new(f(), f(), f()) * 3.0;
+            for (i, b) in boxes.iter().enumerate() {
+                // Toward a point of the box, on no axis exactly parallel.
+                let target = b.min + (b.max - b.min) * Vec3::new(f(), f(), f()).abs() * 0.5;
+                let away = |x: f32| if x.abs() < 0.01 { 0.01 } else { x };
+                let to = target - o;
+                let d = Vec3::new(away(to.x), away(to.y), away(to.z));
+                let inv = Ray::new(o, d, 0.0, f32::INFINITY).inv_dir();
+                let (mut entry, mut exit) = (f32::NEG_INFINITY, f32::INFINITY);
+                for a in 0..3 {
+                    let (near, far) = if d[a] < 0.0 {
+                        (b.max[a], b.min[a])
+                    } else {
+                        (b.min[a], b.max[a])
+                    };
+                    entry = entry.max((near - o[a]) * inv[a]);
+                    exit = exit.min((far - o[a]) * exit_reciprocal(inv[a]));
+                }
+                if !(entry <= exit && exit > 0.0 && exit.is_finite()) {
+                    continue;
+                }
+                checked += 1;
+                for (tmin, enters) in [(exit, true), (next_up(exit), false)] {
+                    let ray = Ray::new(o, d, tmin, f32::INFINITY);
+                    let what = format!("box {i}, tmin {tmin} (exit {exit})");
+                    let (e, x) = b.slab(o, ray.inv_dir(), ray.octant(), tmin, f32::INFINITY);
+                    assert_eq!(x.to_bits(), exit.to_bits(), "Aabb::slab, {what}");
+                    assert_eq!(e <= x, enters, "Aabb::slab, {what}");
+                    for simd in [true, false] {
+                        crate::set_simd_enabled(simd);
+                        let (mask, _) = node.slab(&BoxRay::new(&ray), f32::INFINITY);
+                        let node4 = Node4::from_boxes(&boxes[i..i + 1]);
+                        let mask4 = node4.slab(&BoxRay::new(&ray), f32::INFINITY).0;
+                        crate::set_simd_enabled(true);
+                        assert_eq!(mask >> i & 1 == 1, enters, "8-wide, simd {simd}, {what}");
+                        assert_eq!(mask4 & 1 == 1, enters, "4-wide, simd {simd}, {what}");
+                    }
+                    let pair = NodePair([Node::new(*b), Node::new(*b)]);
+                    let (l0, l1) = PlaneRay::new(&ray).slab(&pair.0[0], f32::INFINITY);
+                    assert_eq!(l0 <= l1, enters, "binary walk, {what}");
+                    let pr = PairRay::new(&ray);
+                    assert_eq!(
+                        super::super::pair_slab_scalar(&pair, &pr, f32::INFINITY).0 == 3,
+                        enters,
+                        "pair, {what}"
+                    );
+                    #[cfg(target_arch = "x86_64")]
+                    if crate::simd::has_avx2() {
+                        let got = crate::simd::pair_slab(&pair, &pr, f32::INFINITY).0;
+                        assert_eq!(got == 3, enters, "AVX pair, {what}");
+                    }
+                    let rays = [ray; crate::LANES];
+                    let packet = crate::Packet8::new(&rays).expect("one octant");
+                    for simd in [true, false] {
+                        crate::set_simd_enabled(simd);
+                        let (m, _) = crate::packet::slab(
+                            &packet,
+                            b.min.to_array(),
+                            b.max.to_array(),
+                            &[f32::INFINITY; crate::LANES],
+                        );
+                        crate::set_simd_enabled(true);
+                        assert_eq!(m == 0xff, enters, "packet, simd {simd}, {what}");
+                        assert!(m == 0 || m == 0xff, "packet lanes agree, {what}");
+                    }
+                }
+            }
+        }
+        assert!(checked > 10_000, "only {checked} boxes the rays cross");
+    }
+
     /// The public node test agrees with the one-box slab test on every
     /// child, with the SIMD kernels on and off, empty slots never entered.
     #[test]
