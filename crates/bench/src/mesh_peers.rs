@@ -1,0 +1,358 @@
+//! `raymesh-mesh-peers MESH... [--threads LIST] [--repeat R] [--json]
+//! [--markdown]`: raymesh's half-edge mesh against OpenMesh 9 (built with
+//! `--features openmesh`) on the operations `raymesh mesh --bench` times,
+//! in one run: building the connectivity from indexed triangles, walking
+//! every vertex's one-ring, vertex normals, and one Loop step. The two
+//! take turns: a pass of every operation for raymesh, then one for
+//! OpenMesh, `--repeat` times; each reports its best. OpenMesh runs on one
+//! thread; raymesh in a pool of each given size. Each operation's results
+//! are compared (counts, the one-ring's neighbours, the faces after Loop),
+//! so that the two are seen to do the same work.
+
+#[cfg(feature = "openmesh")]
+mod openmesh_peer;
+
+use anyhow::{bail, Context, Result};
+use clap::Parser;
+use raymesh_mesh::handle::Vertex;
+use raymesh_mesh::io::read_mesh;
+use raymesh_mesh::{HalfEdgeMesh, IndexedMesh};
+use serde::Serialize;
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// Mesh operations side by side with OpenMesh.
+#[derive(Parser)]
+struct Args {
+    /// Mesh files (triangle meshes; polygons are fan-triangulated for
+    /// OpenMesh's triangle mesh and raymesh alike).
+    #[arg(required = true)]
+    meshes: Vec<PathBuf>,
+    /// raymesh's thread counts, comma-separated (OpenMesh uses one).
+    #[arg(long, default_value = "1")]
+    threads: String,
+    /// Timed repeats of each operation; the best is reported.
+    #[arg(long, default_value_t = 5)]
+    repeat: u32,
+    /// JSON lines instead of the text report.
+    #[arg(long)]
+    json: bool,
+    /// A markdown table as well.
+    #[arg(long)]
+    markdown: bool,
+}
+
+/// One operation on one mesh.
+#[derive(Serialize)]
+struct Row {
+    mesh: String,
+    threads: usize,
+    operation: &'static str,
+    unit: &'static str,
+    raymesh: f64,
+    /// `None` where OpenMesh is not built in.
+    openmesh: Option<f64>,
+    /// OpenMesh's time over raymesh's: above 1 when raymesh is faster.
+    speedup: Option<f64>,
+    /// Whether both gave the same result (counts, neighbours, faces).
+    agree: Option<bool>,
+    /// Triangles OpenMesh refused to add (non-manifold ones; raymesh
+    /// repairs them instead), on the build row.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    refused: Option<usize>,
+    /// Vertices raymesh added by splitting non-manifold ones (OpenMesh
+    /// keeps such vertices as they are), on the build row.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    split_vertices: Option<usize>,
+}
+
+/// One run of `f`: the lesser of `best` and its time, in milliseconds,
+/// and its result.
+fn best_of<T>(best: f64, f: impl FnOnce() -> T) -> (f64, T) {
+    let t = Instant::now();
+    let r = std::hint::black_box(f());
+    (best.min(t.elapsed().as_secs_f64() * 1e3), r)
+}
+
+/// raymesh's one-ring walk over every vertex, clockwise as OpenMesh's
+/// `vv_range`: the sum of the neighbours' indices and their number.
+fn one_ring(he: &HalfEdgeMesh) -> (u64, u64) {
+    let (mut sum, mut n) = (0u64, 0u64);
+    for v in 0..he.num_vertices() {
+        for w in he.vertex_vertices_cw(Vertex::new(v)) {
+            sum = sum.wrapping_add(w.0 as u64);
+            n += 1;
+        }
+    }
+    (sum, n)
+}
+
+/// What OpenMesh measured, where it is built in: per operation, its time
+/// and whether its result matched raymesh's.
+#[cfg(feature = "openmesh")]
+struct OmRun {
+    build_ms: f64,
+    ring_ns: f64,
+    normals_ms: f64,
+    loop_ms: f64,
+    agree_build: bool,
+    agree_ring: bool,
+    agree_loop: bool,
+    refused: usize,
+}
+
+fn short(p: &std::path::Path) -> String {
+    p.file_name().map_or_else(
+        || p.display().to_string(),
+        |f| f.to_string_lossy().into_owned(),
+    )
+}
+
+fn main() -> Result<()> {
+    let args = Args::parse();
+    if args.repeat == 0 {
+        bail!("--repeat must be at least 1");
+    }
+    let threads: Vec<usize> = args
+        .threads
+        .split(',')
+        .map(|t| t.trim().parse())
+        .collect::<Result<_, _>>()
+        .context("--threads: a comma-separated list of counts")?;
+    if threads.contains(&0) {
+        bail!("thread counts must be at least 1");
+    }
+    let mut rows = Vec::new();
+    for path in &args.meshes {
+        let read = read_mesh(path)?;
+        // Triangles for both: OpenMesh's `TriMesh` takes no polygons, and
+        // raymesh's half-edge mesh would otherwise keep them.
+        let mesh = IndexedMesh::from_triangles(read.positions.clone(), &read.triangles())
+            .with_context(|| path.display().to_string())?;
+        if !args.json {
+            println!(
+                "{}: {} vertices, {} triangles",
+                path.display(),
+                mesh.positions.len(),
+                mesh.triangles().len()
+            );
+        }
+        for &t in &threads {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(t)
+                .build()
+                .context("thread pool")?;
+            rows.extend(pool.install(|| compare(&args, &mesh, short(path), t))?);
+        }
+    }
+    if args.json {
+        for r in &rows {
+            println!("{}", serde_json::to_string(r)?);
+        }
+        return Ok(());
+    }
+    for r in &rows {
+        let om = match r.openmesh {
+            Some(o) => format!("{o:.3} {}", r.unit),
+            None if cfg!(feature = "openmesh") => "has no such step".into(),
+            None => "not built (--features openmesh)".into(),
+        };
+        let ratio = r
+            .speedup
+            .map_or(String::new(), |s| format!(", raymesh {s:.2}x"));
+        let agree = match (r.agree, r.refused, r.split_vertices) {
+            (Some(true), ..) => ", same result".to_string(),
+            (Some(false), Some(k), _) if k > 0 => {
+                format!(", results differ: OpenMesh refused {k} non-manifold triangles")
+            }
+            (Some(false), _, Some(k)) => {
+                format!(", results differ: raymesh split non-manifold vertices ({k} added)")
+            }
+            (Some(false), ..) => ", RESULTS DIFFER".to_string(),
+            (None, ..) => String::new(),
+        };
+        println!(
+            "  {:<2} thr {:<34} raymesh {:.3} {} | openmesh {om}{ratio}{agree}",
+            r.threads, r.operation, r.raymesh, r.unit
+        );
+    }
+    if args.markdown {
+        println!();
+        println!("| mesh | threads | operation | raymesh | OpenMesh | raymesh speedup |");
+        println!("| --- | --- | --- | --- | --- | --- |");
+        for r in &rows {
+            println!(
+                "| {} | {} | {} | {:.3} {} | {} | {} |",
+                r.mesh,
+                r.threads,
+                r.operation,
+                r.raymesh,
+                r.unit,
+                r.openmesh
+                    .map_or("-".into(), |o| format!("{o:.3} {}", r.unit)),
+                r.speedup.map_or("-".into(), |s| format!("{s:.2}")),
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Both libraries on one mesh, raymesh in the current pool.
+fn compare(args: &Args, mesh: &IndexedMesh, name: String, threads: usize) -> Result<Vec<Row>> {
+    // One pass of each operation for raymesh, then one for OpenMesh, R
+    // times: the best of each.
+    let mut he = HalfEdgeMesh::from_indexed(mesh);
+    let [mut build_ms, mut ring_ms, mut normals_ms, mut loop_ms, mut loop_rebuild_ms] =
+        [f64::INFINITY; 5];
+    let (mut ring_sum, mut ring_n, mut sub) = (0, 0, None);
+    #[cfg(feature = "openmesh")]
+    let mut om_turns = OmTurns::new(mesh);
+    for _ in 0..args.repeat {
+        (build_ms, he) = best_of(build_ms, || HalfEdgeMesh::from_indexed(mesh));
+        (ring_ms, (ring_sum, ring_n)) = best_of(ring_ms, || one_ring(&he));
+        normals_ms = best_of(normals_ms, || he.vertex_normals()).0;
+        (loop_ms, sub) = best_of(loop_ms, || he.loop_subdivide());
+        loop_rebuild_ms = best_of(loop_rebuild_ms, || {
+            he.loop_subdivide().map(|m| HalfEdgeMesh::from_indexed(&m))
+        })
+        .0;
+        #[cfg(feature = "openmesh")]
+        om_turns.pass(mesh);
+    }
+    let ring_ns = ring_ms * 1e6 / ring_n.max(1) as f64;
+    let sub_faces = sub.as_ref().map(|m| m.triangles().len());
+    #[cfg(feature = "openmesh")]
+    let om = Some(om_turns.finish(&he, (ring_sum, ring_n), sub_faces));
+    #[cfg(not(feature = "openmesh"))]
+    let om: Option<()> = {
+        let _ = (ring_sum, sub_faces);
+        None
+    };
+    let row = |operation, unit, raymesh: f64, other: Option<(f64, bool)>| Row {
+        mesh: name.clone(),
+        threads,
+        operation,
+        unit,
+        raymesh,
+        openmesh: other.map(|o| o.0),
+        speedup: other.map(|o| o.0 / raymesh.max(1e-9)),
+        agree: other.map(|o| o.1),
+        refused: None,
+        split_vertices: None,
+    };
+    #[cfg(feature = "openmesh")]
+    let (b, r, nm, l) = match &om {
+        Some(o) => (
+            Some((o.build_ms, o.agree_build)),
+            Some((o.ring_ns, o.agree_ring)),
+            Some((o.normals_ms, true)),
+            Some((o.loop_ms, o.agree_loop)),
+        ),
+        None => (None, None, None, None),
+    };
+    #[cfg(not(feature = "openmesh"))]
+    let (b, r, nm, l): (Option<(f64, bool)>, _, _, _) = {
+        let _ = om;
+        (None, None, None, None)
+    };
+    // Where the two meshes differ (OpenMesh refused triangles, or raymesh
+    // split vertices), so do the one-rings; the rows say why.
+    let split = (he.num_vertices() > mesh.positions.len())
+        .then(|| he.num_vertices() - mesh.positions.len());
+    let mut rows = vec![
+        Row {
+            refused: refused(&om),
+            split_vertices: split,
+            ..row("build from indexed triangles", "ms", build_ms, b)
+        },
+        Row {
+            refused: refused(&om),
+            split_vertices: split,
+            ..row("one-ring walk, per neighbour", "ns", ring_ns, r)
+        },
+        // Weighted otherwise (raymesh by corner angles, OpenMesh's
+        // `update_normals` its faces' unit normals alike): no comparison.
+        Row {
+            agree: None,
+            ..row("vertex normals", "ms", normals_ms, nm)
+        },
+    ];
+    if sub.is_some() {
+        rows.push(row(
+            "one Loop step, to an indexed mesh",
+            "ms",
+            loop_ms,
+            None,
+        ));
+        rows.push(row(
+            "one Loop step, connectivity rebuilt",
+            "ms",
+            loop_rebuild_ms,
+            l,
+        ));
+    }
+    Ok(rows)
+}
+
+/// The triangles OpenMesh refused, where it ran.
+#[cfg(feature = "openmesh")]
+fn refused(om: &Option<OmRun>) -> Option<usize> {
+    om.as_ref().map(|o| o.refused)
+}
+
+#[cfg(not(feature = "openmesh"))]
+fn refused(_: &Option<()>) -> Option<usize> {
+    None
+}
+
+/// OpenMesh's turns on a mesh: its mesh, its best times so far, and
+/// its last results.
+#[cfg(feature = "openmesh")]
+struct OmTurns {
+    om: openmesh_peer::OmMesh,
+    times: [f64; 4],
+    ring: (u64, u64),
+    loop_faces: usize,
+}
+
+#[cfg(feature = "openmesh")]
+impl OmTurns {
+    fn new(mesh: &IndexedMesh) -> Self {
+        Self {
+            om: openmesh_peer::OmMesh::build(mesh),
+            times: [f64::INFINITY; 4],
+            ring: (0, 0),
+            loop_faces: 0,
+        }
+    }
+
+    /// One run of each operation.
+    fn pass(&mut self, mesh: &IndexedMesh) {
+        let [build, ring, normals, step] = &mut self.times;
+        (*build, self.om) = best_of(*build, || openmesh_peer::OmMesh::build(mesh));
+        (*ring, self.ring) = best_of(*ring, || self.om.one_ring());
+        *normals = best_of(*normals, || self.om.normals()).0;
+        let (s, faces) = self.om.loop_step();
+        *step = step.min(s * 1e3);
+        self.loop_faces = faces;
+    }
+
+    /// Its times, and whether each result matches raymesh's (`ring`:
+    /// raymesh's one-ring sum and count; `faces`: its triangles after a
+    /// Loop step).
+    fn finish(self, he: &HalfEdgeMesh, ring: (u64, u64), faces: Option<usize>) -> OmRun {
+        let (v, e, f) = self.om.counts();
+        let [build_ms, ring_ms, normals_ms, loop_ms] = self.times;
+        OmRun {
+            build_ms,
+            ring_ns: ring_ms * 1e6 / self.ring.1.max(1) as f64,
+            normals_ms,
+            loop_ms,
+            agree_build: self.om.refused == 0
+                && (v, e, f) == (he.num_vertices(), he.num_edges(), he.num_faces()),
+            agree_ring: self.ring == ring,
+            agree_loop: faces == Some(self.loop_faces),
+            refused: self.om.refused,
+        }
+    }
+}
