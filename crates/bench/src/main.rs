@@ -13,6 +13,7 @@ mod chart;
 #[cfg(feature = "embree")]
 mod embree_peer;
 mod engines;
+mod thread_list;
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
@@ -343,15 +344,7 @@ fn short(path: &Path) -> String {
 
 fn main() -> Result<()> {
     let args = Args::parse();
-    let threads: Vec<usize> = args
-        .threads
-        .split(',')
-        .map(|t| t.trim().parse())
-        .collect::<Result<_, _>>()
-        .context("--threads: a comma-separated list of counts")?;
-    if threads.contains(&0) {
-        bail!("thread counts must be at least 1");
-    }
+    let threads = thread_list::parse(&args.threads)?;
     if let Some(chart) = &args.chart {
         chart::check_path(chart)?;
     }

@@ -11,6 +11,7 @@
 
 #[cfg(feature = "openmesh")]
 mod openmesh_peer;
+mod thread_list;
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
@@ -113,15 +114,7 @@ fn main() -> Result<()> {
     if args.repeat == 0 {
         bail!("--repeat must be at least 1");
     }
-    let threads: Vec<usize> = args
-        .threads
-        .split(',')
-        .map(|t| t.trim().parse())
-        .collect::<Result<_, _>>()
-        .context("--threads: a comma-separated list of counts")?;
-    if threads.contains(&0) {
-        bail!("thread counts must be at least 1");
-    }
+    let threads = thread_list::parse(&args.threads)?;
     let mut rows = Vec::new();
     for path in &args.meshes {
         let read = read_mesh(path)?;

@@ -1780,6 +1780,27 @@ mod tests {
         assert!(stack.pop().is_none());
     }
 
+    /// Numbers uniform in `[-2, 2)` from a seed (an LCG: the same in every
+    /// run and on every machine).
+    fn uniform(mut seed: u64) -> impl FnMut() -> f32 {
+        move || {
+            seed = seed
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (seed >> 40) as f32 / (1u64 << 24) as f32 * 4.0 - 2.0
+        }
+    }
+
+    /// `n` boxes with corners from `f`.
+    fn random_boxes(f: &mut impl FnMut() -> f32, n: usize) -> Vec<Aabb> {
+        (0..n)
+            .map(|_| {
+                let p = Vec3::new(f(), f(), f());
+                Aabb::new(p, p + Vec3::new(f().abs(), f().abs(), f().abs()))
+            })
+            .collect()
+    }
+
     /// Every node test pads a box's exit as `(far - origin) ×
     /// exit_reciprocal(inv_dir)`, bit for bit: a ray whose `tmin` is that
     /// exit still enters the box, and one starting an ulp later does not.
@@ -1790,21 +1811,10 @@ mod tests {
     fn node_tests_exit_at_the_padded_reciprocal() {
         use crate::bvh::{Node, NodePair, PairRay, PlaneRay};
         use raymesh_geometry::next_up;
-        let mut seed = 7u64;
-        let mut f = move || {
-            seed = seed
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (seed >> 40) as f32 / (1u64 << 24) as f32 * 4.0 - 2.0
-        };
+        let mut f = uniform(7);
         let mut checked = 0;
         for _ in 0..2000 {
-            let boxes: Vec<Aabb> = (0..8)
-                .map(|_| {
-                    let p = Vec3::new(f(), f(), f());
-                    Aabb::new(p, p + Vec3::new(f().abs(), f().abs(), f().abs()))
-                })
-                .collect();
+            let boxes = random_boxes(&mut f, 8);
             let node = Node8::from_boxes(&boxes);
             let o = Vec3::new(f(), f(), f()) * 3.0;
             for (i, b) in boxes.iter().enumerate() {
@@ -1881,20 +1891,9 @@ mod tests {
     /// child, with the SIMD kernels on and off, empty slots never entered.
     #[test]
     fn node_slab_matches_the_box_slab_test() {
-        let mut seed = 1u64;
-        let mut f = move || {
-            seed = seed
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (seed >> 40) as f32 / (1u64 << 24) as f32 * 4.0 - 2.0
-        };
+        let mut f = uniform(1);
         for _ in 0..500 {
-            let boxes: Vec<Aabb> = (0..6)
-                .map(|_| {
-                    let p = Vec3::new(f(), f(), f());
-                    Aabb::new(p, p + Vec3::new(f().abs(), f().abs(), f().abs()))
-                })
-                .collect();
+            let boxes = random_boxes(&mut f, 6);
             let node = Node8::from_boxes(&boxes);
             let mut d = Vec3::new(f(), f(), f());
             if f() > 1.0 {
