@@ -554,7 +554,8 @@ impl<P: Primitives> Scene<P> {
         found
     }
 
-    /// [`Self::any_hit_counted`] on every path but [`Self::any_avx2`]'s,
+    /// [`Self::any_hit_counted`] on every path but [`Self::any_avx2`]'s and
+    /// [`Self::any_binary_avx2`]'s,
     /// apart for the same reason as [`Self::closest_general`].
     #[inline(never)]
     fn any_general<C: RayCounter>(&self, ray: &Ray, counter: &mut C) -> Option<(u32, PrimHit)> {
