@@ -375,8 +375,11 @@ fn compare(args: &Args) -> Result<()> {
     let baseline = args.baseline.clone().unwrap_or_else(|| this.clone());
     // The rays: the given file, or the workload written to a temporary
     // file that both children read.
-    let (rays_path, _temp, source) = match &args.rays {
-        Some(p) => (p.clone(), None, p.display().to_string()),
+    let (rays_path, n, _temp, source) = match &args.rays {
+        Some(p) => {
+            let n = npy::read_rays(p)?.len();
+            (p.clone(), n, None, p.display().to_string())
+        }
         None => {
             let mesh = read_mesh(&args.mesh)?;
             let tm = TriangleMesh::new(mesh.positions.clone(), mesh.triangles());
@@ -394,10 +397,9 @@ fn compare(args: &Args) -> Result<()> {
             npy::write_rays(&mut w, &rays)?;
             w.flush()?;
             let source = format!("{} {}", args.workload.name(), args.size);
-            (path.clone(), Some(TempFile(path)), source)
+            (path.clone(), rays.len(), Some(TempFile(path)), source)
         }
     };
-    let n = npy::read_rays(&rays_path)?.len();
     ensure!(n > 0, "{}: no rays", rays_path.display());
     // `servers[i]` is instance `i / 2` of the baseline (even `i`) or of
     // this build (odd `i`).
