@@ -344,7 +344,7 @@ impl Builder<'_> {
         let mut bad = bad;
         if cost >= self.tests(n as u32) {
             bad += 1;
-            if bad > MAX_BAD_REFINES || n <= self.config.max_leaf / 2 {
+            if bad > MAX_BAD_REFINES || n <= self.config.max_leaf_for(self.block as usize) / 2 {
                 return None;
             }
         }

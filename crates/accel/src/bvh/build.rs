@@ -130,6 +130,8 @@ struct Ctx<'a> {
     block: usize,
     /// Its base-2 logarithm, where it is a power of two.
     block_shift: Option<u32>,
+    /// [`BuildConfig::max_leaf`], resolved for [`Self::block`].
+    max_leaf: usize,
 }
 
 impl<'a> Ctx<'a> {
@@ -143,6 +145,7 @@ impl<'a> Ctx<'a> {
             par_subtree,
             block,
             block_shift: block.is_power_of_two().then(|| block.trailing_zeros()),
+            max_leaf: config.max_leaf_for(block),
         }
     }
 }
@@ -616,7 +619,7 @@ impl Ctx<'_> {
     /// step of 3, makes a leaf of every node of 2 or 3 primitives.
     #[inline(always)]
     fn leaf_wins(&self, n: usize) -> bool {
-        n <= self.config.max_leaf && self.blocks(n) <= self.config.traversal_cost
+        n <= self.max_leaf && self.blocks(n) <= self.config.traversal_cost
     }
 
     /// Leaf or split, given the best split's SAH cost (relative to the node's area).
@@ -633,13 +636,13 @@ impl Ctx<'_> {
         match best {
             Some((cost, _)) if area > 0.0 => {
                 let split_cost = self.config.traversal_cost + cost / area;
-                if split_cost < leaf_cost || n > self.config.max_leaf {
+                if split_cost < leaf_cost || n > self.max_leaf {
                     Some(apply(ids))
                 } else {
                     None
                 }
             }
-            _ if n > self.config.max_leaf => Some(self.split_by_count(ids, cbounds)),
+            _ if n > self.max_leaf => Some(self.split_by_count(ids, cbounds)),
             _ => None,
         }
     }
@@ -1234,6 +1237,46 @@ mod tests {
                     n.div_ceil(block) as f32,
                     "{n} in blocks of {block}"
                 );
+            }
+        }
+    }
+
+    /// A leaf holds at most [`BuildConfig::max_leaf`] primitives: by
+    /// default 8 when they are weighed one by one (a wide BVH's binary
+    /// tree) and two blocks (16) when in blocks of 8; as given when given.
+    /// Over copies of one box, where no split helps, the SAH builders make
+    /// the largest leaves the limit allows, and no larger.
+    #[test]
+    fn leaves_hold_at_most_max_leaf() {
+        let one = Aabb::new(Vec3::ZERO, Vec3::ONE);
+        for (block, max_leaf, limit) in [
+            (None, None, 8),
+            (Some(8), None, 16),
+            (Some(2), None, 8),
+            (Some(8), Some(4), 4),
+            (None, Some(12), 12),
+        ] {
+            let config = BuildConfig {
+                leaf_block: block,
+                max_leaf,
+                ..BuildConfig::default()
+            };
+            assert_eq!(config.max_leaf_for(block.unwrap_or(1)), limit);
+            for builder in [BvhBuilder::BinnedSah, BvhBuilder::SweepSah] {
+                for n in [limit, limit + 1, 5 * limit + 3] {
+                    let bvh = builder.build(&vec![one; n], &config);
+                    let leaves: Vec<u32> = bvh
+                        .nodes()
+                        .iter()
+                        .filter(|n| n.is_leaf())
+                        .map(|n| n.count)
+                        .collect();
+                    let largest = leaves.iter().copied().max().unwrap_or(0) as usize;
+                    let what = format!("{builder:?}, {n} boxes, blocks {block:?}, {max_leaf:?}");
+                    assert_eq!(leaves.iter().sum::<u32>() as usize, n, "{what}");
+                    assert!(largest <= limit, "{what}: a leaf of {largest}");
+                    assert_eq!(leaves.len() == 1, n <= limit, "{what}: {leaves:?}");
+                }
             }
         }
     }

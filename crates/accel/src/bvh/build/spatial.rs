@@ -231,7 +231,7 @@ impl Spatial<'_> {
         let area = bounds.half_area();
         // Whether a split of this cost beats a leaf (as `Ctx::decide`).
         let leaf_cost = ctx.blocks(n);
-        let max_leaf = ctx.config.max_leaf;
+        let max_leaf = ctx.max_leaf;
         let splits =
             |cost: f32| ctx.config.traversal_cost + cost / area < leaf_cost || n > max_leaf;
         if budget > 0 && area > 0.0 && n >= self.min_refs {
