@@ -861,32 +861,35 @@ impl Ctx<'_> {
     /// Full-sweep SAH over every centroid position on every axis.
     fn split_sweep(&self, ids: &mut [PrimRef], bounds: Aabb, cbounds: Aabb) -> Option<usize> {
         let n = ids.len();
-        // Centroid order on an axis, ties broken by index so that the
-        // split does not depend on the order the node's primitives came in.
-        let by_axis = |axis: usize| {
-            move |a: &PrimRef, b: &PrimRef| {
-                a.centroid()[axis]
-                    .total_cmp(&b.centroid()[axis])
-                    .then(a.id().cmp(&b.id()))
-            }
-        };
         let mut best: Option<(f32, usize, usize)> = None;
-        let mut sorted = ids.to_vec();
+        let mut order = Vec::with_capacity(n);
+        // The references in each axis's order, and the best axis's so far
+        // (kept for the split).
+        let (mut sorted, mut best_sorted) = (Vec::with_capacity(n), Vec::with_capacity(n));
         let mut right_area = vec![0.0f32; n];
         for axis in 0..3 {
-            sorted.sort_unstable_by(by_axis(axis));
-            let mut acc = Aabb::EMPTY;
-            for k in (1..n).rev() {
-                acc = acc.union(sorted[k].bounds());
-                right_area[k] = acc.half_area();
+            sweep_order(ids, axis, &mut order);
+            sorted.clear();
+            sorted.extend(order.iter().map(|&(_, i)| ids[i as usize]));
+            let mut acc = Bin::EMPTY;
+            for (area, r) in right_area[1..].iter_mut().zip(&sorted[1..]).rev() {
+                let (lo, hi) = r.corners();
+                acc.add(lo, hi);
+                *area = acc.half_area();
             }
-            let mut lbox = Aabb::EMPTY;
-            for k in 1..n {
-                lbox = lbox.union(sorted[k - 1].bounds());
-                let cost = lbox.half_area() * self.blocks(k) + right_area[k] * self.blocks(n - k);
+            let mut left = Bin::EMPTY;
+            let mut improved = false;
+            for (k, (r, &right)) in (1..).zip(sorted.iter().zip(&right_area[1..])) {
+                let (lo, hi) = r.corners();
+                left.add(lo, hi);
+                let cost = left.half_area() * self.blocks(k) + right * self.blocks(n - k);
                 if best.is_none_or(|(bc, _, _)| cost < bc) {
                     best = Some((cost, axis, k));
+                    improved = true;
                 }
+            }
+            if improved {
+                std::mem::swap(&mut sorted, &mut best_sorted);
             }
         }
         let area = bounds.half_area();
@@ -896,12 +899,39 @@ impl Ctx<'_> {
             best.map(|(cst, a, _)| (cst, a)),
             area,
             |ids| {
-                let (_, axis, k) = best.expect("a split was found");
-                ids.sort_unstable_by(by_axis(axis));
-                k
+                ids.copy_from_slice(&best_sorted);
+                best.expect("a split was found").2
             },
         )
     }
+}
+
+/// Fills `order` with the positions in `ids` of its primitives sorted by
+/// centroid on `axis` (in `f32::total_cmp`'s order), ties broken by
+/// primitive index, so that a split does not depend on the order the
+/// node's primitives came in. Each is sorted as one integer key
+/// ([`sweep_key`]) beside its position: sorting the references with a
+/// comparison that recomputed both centroids took the sweep builder
+/// several times as long.
+fn sweep_order(ids: &[PrimRef], axis: usize, order: &mut Vec<(u64, u32)>) {
+    order.clear();
+    order.extend(
+        (0u32..)
+            .zip(ids)
+            .map(|(i, r)| (sweep_key(r.centroid()[axis], r.id()), i)),
+    );
+    order.sort_unstable();
+}
+
+/// A key whose integer order is `c`'s `f32::total_cmp` order, then `id`'s.
+#[inline(always)]
+fn sweep_key(c: f32, id: u32) -> u64 {
+    // `total_cmp`'s own mapping to a signed integer (the magnitude bits
+    // flipped for negative numbers), then the sign bit flipped so that
+    // the order holds unsigned.
+    let bits = c.to_bits() as i32;
+    let ordered = (bits ^ (((bits >> 31) as u32) >> 1) as i32) as u32 ^ 0x8000_0000;
+    (u64::from(ordered) << 32) | u64::from(id)
 }
 
 /// Primitives [`Ctx::bin`] finds the bins of before it updates them.
@@ -1277,6 +1307,45 @@ mod tests {
                     assert!(largest <= limit, "{what}: a leaf of {largest}");
                     assert_eq!(leaves.len() == 1, n <= limit, "{what}: {leaves:?}");
                 }
+            }
+        }
+    }
+
+    /// The sweep builder's integer keys order centroids as `total_cmp`
+    /// does, then primitive indices: over zeros of both signs, NaNs,
+    /// infinities, subnormals and ties.
+    #[test]
+    fn sweep_keys_order_as_total_cmp_then_index() {
+        let mut values = vec![
+            0.0f32,
+            -0.0,
+            f32::NAN,
+            -f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::MIN_POSITIVE,
+            -f32::MIN_POSITIVE,
+            f32::from_bits(1),
+            -f32::from_bits(1),
+            1.0,
+            -1.0,
+            f32::MAX,
+            f32::MIN,
+        ];
+        let mut rng = crate::test_util::xorshift(7);
+        values.extend((0..200).map(|_| (rng() - 0.5) * 1e3));
+        let keyed: Vec<(f32, u32)> = values
+            .iter()
+            .enumerate()
+            .flat_map(|(i, &v)| [(v, i as u32), (v, 1000 + i as u32)])
+            .collect();
+        for a in &keyed {
+            for b in &keyed {
+                assert_eq!(
+                    sweep_key(a.0, a.1).cmp(&sweep_key(b.0, b.1)),
+                    a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)),
+                    "{a:?} against {b:?}"
+                );
             }
         }
     }
