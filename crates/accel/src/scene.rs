@@ -69,6 +69,13 @@ pub trait Surface: Send + Sync {
     fn intersect8(&self, rays: &[Ray; LANES]) -> [Option<Hit>; LANES] {
         rays.each_ref().map(|r| self.intersect(r))
     }
+    /// Whether each of eight rays hits anything: [`Surface::occluded`] of
+    /// each. A [`Scene`] over a BVH traces coherent rays (shadow rays of
+    /// neighbouring pixels toward one light) together, with the same
+    /// answers.
+    fn occluded8(&self, rays: &[Ray; LANES]) -> [bool; LANES] {
+        rays.each_ref().map(|r| self.occluded(r))
+    }
     /// [`Surface::intersect`], adding the nodes visited and primitives
     /// tested to `stats` (heat maps use it).
     fn intersect_count(&self, ray: &Ray, stats: &mut CountStats) -> Option<Hit> {
@@ -672,6 +679,77 @@ impl<P: Primitives> Scene<P> {
         best
     }
 
+    /// Any hit of each of eight rays (shadow rays from neighbouring
+    /// pixels toward one light): whether [`Self::any_hit`] of each finds
+    /// one, and then a hit of that ray within its interval, though not
+    /// necessarily the one [`Self::any_hit`] finds first (the packet
+    /// visits the nodes in another order). Coherent rays walk a BVH
+    /// together as a [`Packet8`], nearest child first, and each lane
+    /// drops out at its first hit; other rays, and other structures, are
+    /// traced one by one.
+    pub fn any_hit8(&self, rays: &[Ray; LANES]) -> [Option<Hit>; LANES] {
+        let found = self.first8(rays);
+        std::array::from_fn(|i| found[i].map(|(prim, h)| self.hit(prim, &rays[i], h)))
+    }
+
+    /// [`Self::any_hit8`] without the normals: the same hits.
+    pub fn any_hit8_bare(&self, rays: &[Ray; LANES]) -> [Option<BareHit>; LANES] {
+        self.first8(rays)
+            .map(|b| b.map(|(prim, h)| self.bare(prim, h)))
+    }
+
+    /// Whether each of eight rays hits anything: [`Self::any_hit8`]'s
+    /// answer without a hit made.
+    pub fn occluded8(&self, rays: &[Ray; LANES]) -> [bool; LANES] {
+        self.first8(rays).map(|f| f.is_some())
+    }
+
+    /// The primitives (in storage order) and hits of [`Self::any_hit8`].
+    fn first8(&self, rays: &[Ray; LANES]) -> [Option<(u32, PrimHit)>; LANES] {
+        let (Some(wide), Some(p)) = (self.wide_blocks(), Packet8::new(rays)) else {
+            return rays.each_ref().map(|r| self.first_hit(r, &mut NoStats));
+        };
+        let mut found: [Option<(u32, PrimHit)>; LANES] = [None; LANES];
+        let mut tmax: [f32; LANES] = std::array::from_fn(|i| rays[i].tmax());
+        // A lane that has a hit is done: its bound goes to -inf, which
+        // every later box and triangle test of the lane fails.
+        let mut leaf = |first: u32, count: u32, lanes: u32, tmax: &mut [f32; LANES]| {
+            // Lane by lane where few lanes reach a leaf of several blocks,
+            // as for closest hits.
+            if lanes.count_ones() * count.div_ceil(BLOCK as u32) < count {
+                let mut m = lanes;
+                while m != 0 {
+                    let i = m.trailing_zeros() as usize;
+                    m &= m - 1;
+                    if let Some(f) = self.leaf_any(&rays[i], first, count) {
+                        found[i] = Some(f);
+                        tmax[i] = f32::NEG_INFINITY;
+                    }
+                }
+                return;
+            }
+            self.prims.intersect_packet_run(
+                first,
+                count,
+                &p,
+                lanes,
+                tmax,
+                &mut |i, prim, h, tmax| {
+                    if found[i].is_none() {
+                        found[i] = Some((prim, h));
+                        tmax[i] = f32::NEG_INFINITY;
+                    }
+                },
+            );
+        };
+        match wide {
+            WideRef::W4(b) => b.traverse_packet(&p, &mut tmax, &mut leaf),
+            WideRef::W8(b) => b.traverse_packet(&p, &mut tmax, &mut leaf),
+            WideRef::W2(b) => b.traverse_packet(&p, &mut tmax, &mut leaf),
+        }
+        found
+    }
+
     /// The closest hits of many rays: `out[i]` is [`Self::intersect`] of
     /// `rays[i]`, bit for bit.
     ///
@@ -836,6 +914,9 @@ impl<P: Primitives> Surface for Scene<P> {
     }
     fn intersect8(&self, rays: &[Ray; LANES]) -> [Option<Hit>; LANES] {
         Scene::intersect8(self, rays)
+    }
+    fn occluded8(&self, rays: &[Ray; LANES]) -> [bool; LANES] {
+        Scene::occluded8(self, rays)
     }
     fn intersect_count(&self, ray: &Ray, stats: &mut CountStats) -> Option<Hit> {
         self.intersect_counted(ray, stats)

@@ -6,7 +6,7 @@
 
 use proptest::prelude::*;
 use raymesh_accel::*;
-use raymesh_geometry::{Mat4, Sphere};
+use raymesh_geometry::{intersect_triangle, Mat4, Sphere};
 
 mod common;
 use common::{bare_bits, bare_of, hit_bits as key, load, point, soup, tri_mesh, unit_grid};
@@ -29,11 +29,43 @@ fn check(s: &dyn Surface, rays: &[Ray], what: &str) -> usize {
         let packet: [Ray; LANES] = std::array::from_fn(|i| chunk[i % chunk.len()]);
         coherent += usize::from(Packet8::new(&packet).is_some());
         let got = s.intersect8(&packet);
+        let occluded = s.occluded8(&packet);
         for (i, r) in packet.iter().enumerate() {
             assert_eq!(key(got[i]), key(s.intersect(r)), "{what}: lane {i}: {r:?}");
+            assert_eq!(
+                occluded[i],
+                s.occluded(r),
+                "{what}: occluded, lane {i}: {r:?}"
+            );
         }
     }
     coherent
+}
+
+/// Checks `any_hit8` on each packet of `rays` over a scene of `m`'s
+/// triangles: a lane has a hit exactly when its ray is occluded, and the
+/// hit is its triangle's own (the same bits of `t`, `u`, `v` as the
+/// watertight test of that triangle alone), whichever one the packet
+/// found first; `any_hit8_bare` and `occluded8` say the same.
+fn check_any<P: Primitives>(s: &Scene<P>, m: &TriangleMesh, rays: &[Ray], what: &str) {
+    for chunk in rays.chunks(LANES) {
+        let packet: [Ray; LANES] = std::array::from_fn(|i| chunk[i % chunk.len()]);
+        let (full, bare) = (s.any_hit8(&packet), s.any_hit8_bare(&packet));
+        let occluded = s.occluded8(&packet);
+        for (i, r) in packet.iter().enumerate() {
+            let what = format!("{what}: any hit, lane {i}: {r:?}");
+            assert_eq!(full[i].is_some(), s.occluded(r), "{what}");
+            assert_eq!(occluded[i], s.occluded(r), "{what}");
+            assert_eq!(bare_bits(bare[i]), bare_of(full[i]), "{what}");
+            if let Some(h) = full[i] {
+                let [a, b, c] = m.corners(h.prim);
+                let own = intersect_triangle(r, r.tmax(), a, b, c)
+                    .unwrap_or_else(|| panic!("{what}: {h:?} is no hit of its triangle"));
+                let bits = |t: f32, u: f32, v: f32| [t, u, v].map(f32::to_bits);
+                assert_eq!(bits(h.t, h.u, h.v), bits(own.t, own.u, own.v), "{what}");
+            }
+        }
+    }
 }
 
 /// Checks `intersect8_bare` against `intersect8` on each packet of `rays`.
@@ -59,6 +91,13 @@ fn check_mesh(m: &TriangleMesh, rays: &[Ray]) -> usize {
         let rows = Scene::from_mesh(m, kind);
         coherent += check(&rows, rays, &format!("{kind} rows"));
         check_bare(&rows, rays, &format!("{kind} rows"));
+        check_any(&rows, m, rays, &format!("{kind} rows"));
+        check_any(
+            &Scene::build(m.clone(), kind),
+            m,
+            rays,
+            &format!("{kind} mesh"),
+        );
         check(
             &Scene::build(m.clone(), kind),
             rays,
@@ -79,6 +118,7 @@ fn check_mesh(m: &TriangleMesh, rays: &[Ray]) -> usize {
     for kind in [AccelKind::Bvh8, AccelKind::Bvh4, AccelKind::BvhBinned] {
         let s = Scene::from_mesh_with(m, kind, &spatial);
         check(&s, rays, &format!("{kind} rows, spatial splits"));
+        check_any(&s, m, rays, &format!("{kind} rows, spatial splits"));
     }
     coherent
 }

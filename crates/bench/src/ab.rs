@@ -59,7 +59,8 @@ struct Args {
     /// Queries to compare, comma-separated: closest, any-hit.
     #[arg(long, default_value = "closest,any-hit")]
     query: String,
-    /// Closest hits eight consecutive rays at a time (`Scene::intersect8_bare`).
+    /// Eight consecutive rays at a time (`Scene::intersect8_bare`,
+    /// `Scene::any_hit8_bare`).
     #[arg(long, conflicts_with = "stream")]
     packets: bool,
     /// Each chunk traced as streams of 1,024 rays (`Scene::stream_bare`).
@@ -203,15 +204,22 @@ fn trace(scene: &Scene<Triangles>, rays: &[Ray], query: Query, packets: bool, st
             scene.stream_bare(part, query == Query::AnyHit, hits);
             hits.iter().for_each(|h| sum.add(*h));
         }
-    } else if packets && query == Query::Closest {
+    } else if packets {
         for part in rays.chunks(LANES) {
             if let Ok(packet) = <&[Ray; LANES]>::try_from(part) {
-                scene
-                    .intersect8_bare(packet)
-                    .into_iter()
-                    .for_each(|h| sum.add(h));
+                match query {
+                    Query::Closest => scene.intersect8_bare(packet),
+                    Query::AnyHit => scene.any_hit8_bare(packet),
+                }
+                .into_iter()
+                .for_each(|h| sum.add(h));
             } else {
-                part.iter().for_each(|r| sum.add(scene.intersect_bare(r)));
+                part.iter().for_each(|r| {
+                    sum.add(match query {
+                        Query::Closest => scene.intersect_bare(r),
+                        Query::AnyHit => scene.any_hit_bare(r),
+                    });
+                });
             }
         }
     } else {

@@ -9,7 +9,7 @@
 use embree::sys::{
     rtcAttachGeometry, rtcBuildBVH, rtcCommitGeometry, rtcCommitScene, rtcIntersect1,
     rtcIntersect1M, rtcIntersect8, rtcNewBVH, rtcNewDevice, rtcNewGeometry, rtcNewScene,
-    rtcOccluded1, rtcOccluded1M, rtcReleaseBVH, rtcReleaseDevice, rtcReleaseGeometry,
+    rtcOccluded1, rtcOccluded1M, rtcOccluded8, rtcReleaseBVH, rtcReleaseDevice, rtcReleaseGeometry,
     rtcReleaseScene, rtcSetDeviceMemoryMonitorFunction, rtcSetGeometryBuildQuality,
     rtcSetSceneBuildQuality, rtcSetSharedGeometryBuffer, rtcThreadLocalAlloc, RTCBounds,
     RTCBufferType, RTCBuildArguments, RTCBuildFlags, RTCBuildPrimitive, RTCBuildQuality, RTCDevice,
@@ -20,6 +20,11 @@ use raymesh_geometry::{Aabb, Vec3};
 use std::ffi::c_void;
 use std::sync::atomic::{AtomicI64, Ordering};
 use std::time::Instant;
+
+/// A packet's valid mask, aligned as the packet is (Embree may load it
+/// with aligned vector loads).
+#[repr(C, align(32))]
+struct Valid8([i32; 8]);
 
 /// Bytes Embree has allocated, as its memory monitor reports them.
 static ALLOCATED: AtomicI64 = AtomicI64::new(0);
@@ -156,22 +161,8 @@ impl EmbreeScene {
     /// coherent-rays hint: the packet mode is for camera rays).
     pub fn intersect8(&self, r: &[[f32; 8]; 8]) -> [Option<(f32, u32)>; 8] {
         let mut ctx = embree::IntersectContext::coherent();
-        let lane = |k: usize| std::array::from_fn(|i| r[i][k]);
         let mut rh = RTCRayHit8 {
-            ray: RTCRay8 {
-                org_x: lane(0),
-                org_y: lane(1),
-                org_z: lane(2),
-                tnear: lane(3),
-                dir_x: lane(4),
-                dir_y: lane(5),
-                dir_z: lane(6),
-                time: [0.0; 8],
-                tfar: lane(7),
-                mask: [u32::MAX; 8],
-                id: [0; 8],
-                flags: [0; 8],
-            },
+            ray: Self::ray8(r),
             hit: RTCHit8 {
                 Ng_x: [0.0; 8],
                 Ng_y: [0.0; 8],
@@ -183,11 +174,7 @@ impl EmbreeScene {
                 instID: [[u32::MAX; 8]],
             },
         };
-        /// The valid mask, aligned as the packet is (Embree may load it
-        /// with aligned vector loads).
-        #[repr(C, align(32))]
-        struct Valid([i32; 8]);
-        let valid = Valid([-1; 8]);
+        let valid = Valid8([-1; 8]);
         // SAFETY: the scene is committed and alive; `valid` holds 8 ints
         // and `rh` is an 8-ray packet, both with the 32-byte alignment
         // rtcIntersect8 asks of packets, and valid for the call.
@@ -195,6 +182,38 @@ impl EmbreeScene {
         std::array::from_fn(|i| {
             (rh.hit.geomID[i] != u32::MAX).then_some((rh.ray.tfar[i], rh.hit.primID[i]))
         })
+    }
+
+    /// Whether each of eight rays hits anything, as one packet
+    /// (`rtcOccluded8`, with the coherent-rays hint, as `intersect8`).
+    pub fn occluded8(&self, r: &[[f32; 8]; 8]) -> [bool; 8] {
+        let mut ctx = embree::IntersectContext::coherent();
+        let mut ray = Self::ray8(r);
+        let valid = Valid8([-1; 8]);
+        // SAFETY: as for rtcIntersect8 in `intersect8`: a committed scene,
+        // and a valid mask and packet of 8 with 32-byte alignment.
+        unsafe { rtcOccluded8(valid.0.as_ptr(), self.scene, &mut ctx, &mut ray) };
+        // Embree sets `tfar` to -inf where the ray is occluded.
+        std::array::from_fn(|i| ray.tfar[i] == f32::NEG_INFINITY)
+    }
+
+    /// Eight rays (BENCH.md's layout) as an Embree packet.
+    fn ray8(r: &[[f32; 8]; 8]) -> RTCRay8 {
+        let lane = |k: usize| std::array::from_fn(|i| r[i][k]);
+        RTCRay8 {
+            org_x: lane(0),
+            org_y: lane(1),
+            org_z: lane(2),
+            tnear: lane(3),
+            dir_x: lane(4),
+            dir_y: lane(5),
+            dir_z: lane(6),
+            time: [0.0; 8],
+            tfar: lane(7),
+            mask: [u32::MAX; 8],
+            id: [0; 8],
+            flags: [0; 8],
+        }
     }
 
     /// Closest hits (`any == false`, `(t, prim)`) or any hits (`(0, 0)`)
@@ -471,6 +490,12 @@ impl crate::engines::Engine for EmbreeScene {
     ) -> (f64, Vec<crate::engines::Answer>) {
         if run.stream {
             run.run_chunks(rays, |rays, out| self.stream(rays, any, out))
+        } else if any && run.packets {
+            run.run8(
+                rays,
+                |p| self.occluded8(p).map(|o| o.then_some((0.0, 0))),
+                |r| self.occluded(r).then_some((0.0, 0)),
+            )
         } else if any {
             run.run(rays, |r| self.occluded(r).then_some((0.0, 0)))
         } else if run.packets {

@@ -23,9 +23,10 @@ pub struct Runner<'a> {
     pub pool: &'a ThreadPool,
     /// Passes; the best is reported.
     pub repeat: u32,
-    /// Closest hits eight consecutive rays at a time, for the engines that
-    /// trace packets (raymesh's `Scene::intersect8`, Embree's
-    /// `rtcIntersect8`); the others trace one ray at a time regardless.
+    /// Eight consecutive rays at a time, for the engines that trace
+    /// packets (raymesh's `Scene::intersect8` and `Scene::occluded8`,
+    /// Embree's `rtcIntersect8` and `rtcOccluded8`); the others trace one
+    /// ray at a time regardless.
     pub packets: bool,
     /// Traces each task's rays as one stream, for the engines with a
     /// stream call (raymesh's `Scene::intersect_stream`, Embree's
@@ -188,7 +189,17 @@ impl Engine for Raymesh {
         // the normal it stores for each triangle as well.
         let ray = |r: &[f32; 8]| raymesh::workload::unpack_ray(*r);
         let hit = |h: Option<raymesh_accel::BareHit>| h.map(|h| (h.t, h.prim));
-        if run.packets && !any {
+        if run.packets && any {
+            return run.run8(
+                rays,
+                |p| {
+                    let o = self.scene.occluded8(&p.each_ref().map(ray));
+                    o.map(|o| o.then_some((0.0, 0)))
+                },
+                |r| self.scene.occluded(&ray(r)).then_some((0.0, 0)),
+            );
+        }
+        if run.packets {
             return run.run8(
                 rays,
                 |p| self.scene.intersect8_bare(&p.each_ref().map(ray)).map(hit),
@@ -582,11 +593,16 @@ mod tests {
                     packets: true,
                     ..run
                 };
-                for w in [Workload::Primary, Workload::Random] {
+                for w in [Workload::Primary, Workload::Random, Workload::Shadow] {
                     let rays = make_rays(w, &scene, 48, 3);
-                    let (_, want) = reference.trace(&rays, false, &run);
-                    let (_, got) = reference.trace(&rays, false, &packets);
-                    assert_eq!(got, want, "{file}: {w:?} in packets, {threads} threads");
+                    for any in [false, true] {
+                        let (_, want) = reference.trace(&rays, any, &run);
+                        let (_, got) = reference.trace(&rays, any, &packets);
+                        assert_eq!(
+                            got, want,
+                            "{file}: {w:?} in packets, any {any}, {threads} threads"
+                        );
+                    }
                 }
                 for w in [Workload::Random, Workload::Diffuse, Workload::Shadow] {
                     let mut rays = make_rays(w, &scene, 48, 3);

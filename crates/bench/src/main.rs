@@ -62,9 +62,10 @@ struct Args {
     /// Draw Mrays/s per engine as a bar chart (PNG, or SVG by extension).
     #[arg(long)]
     chart: Option<PathBuf>,
-    /// Closest hits eight consecutive rays at a time where the engine has
-    /// packets (raymesh `Scene::intersect8`, Embree `rtcIntersect8`); the
-    /// Rust peers and any-hit queries stay one ray at a time.
+    /// Eight consecutive rays at a time where the engine has packets
+    /// (raymesh `Scene::intersect8` and `Scene::occluded8`, Embree
+    /// `rtcIntersect8` and `rtcOccluded8`); the Rust peers stay one ray
+    /// at a time.
     #[arg(long)]
     packets: bool,
     /// Traces each task's 1,024 rays as one stream where the engine has a

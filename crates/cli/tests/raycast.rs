@@ -214,6 +214,49 @@ fn any_hit_agrees_on_what_is_hit() {
         closest,
         "bvh-binned --stream"
     );
+    for accel in ["bvh8", "bvh4", "bvh-binned"] {
+        assert_eq!(
+            count(&["--any-hit", "--accel", accel, "--packets"]),
+            closest,
+            "{accel} --packets"
+        );
+    }
+    // A camera's rays, which go as packets.
+    let primary = dir.join("p.npy");
+    run_ok(
+        raymesh()
+            .arg("rays")
+            .arg(&mesh)
+            .args(["--workload", "primary", "--size", "24", "-o"])
+            .arg(&primary),
+    );
+    let hits = |extra: &[&str]| -> Vec<u8> {
+        let out = dir.join("h.npy");
+        run_ok(
+            raymesh()
+                .arg("raycast")
+                .arg(&mesh)
+                .arg("--rays")
+                .arg(&primary)
+                .arg("--out")
+                .arg(&out)
+                .args(extra),
+        );
+        npy_data(&out)
+    };
+    // Hit records of 16 bytes: `t`, `prim`, `u`, `v`; a miss has prim -1.
+    let hit_or_miss = |records: &[u8]| -> Vec<bool> {
+        records
+            .chunks_exact(16)
+            .map(|r| i32::from_le_bytes(r[4..8].try_into().unwrap()) >= 0)
+            .collect()
+    };
+    let reference = hit_or_miss(&hits(&["--accel", "brute"]));
+    assert!(reference.iter().any(|&h| h) && reference.iter().any(|&h| !h));
+    for accel in ["bvh8", "bvh4", "bvh-binned"] {
+        let got = hit_or_miss(&hits(&["--any-hit", "--accel", accel, "--packets"]));
+        assert_eq!(got, reference, "{accel} --any-hit --packets, primary rays");
+    }
     let table = run_ok(
         raymesh()
             .arg("raycast")

@@ -40,11 +40,14 @@ pub struct Args {
     /// Also count mean nodes visited and primitives tested per ray (in a separate, untimed pass).
     #[arg(long)]
     pub stats: bool,
-    /// Trace closest hits eight consecutive rays at a time, as packets
-    /// (`Scene::intersect8`): fast for coherent rays such as a camera's,
-    /// in tiles of 8; eight that do not share a direction octant and
-    /// dominant axis are traced one by one. Same hits, bit for bit.
-    #[arg(long, conflicts_with = "any_hit")]
+    /// Trace eight consecutive rays at a time, as packets
+    /// (`Scene::intersect8`, with `--any-hit` `Scene::any_hit8`): fast for
+    /// coherent rays such as a camera's, in tiles of 8, or shadow rays
+    /// toward one light; eight that do not share a direction octant and
+    /// dominant axis are traced one by one. Closest hits: the same hits,
+    /// bit for bit; any hits: the same rays hit, each with a hit of its
+    /// own (not always the one found first one by one).
+    #[arg(long)]
     pub packets: bool,
     /// Trace each task's rays as a stream (`Scene::stream_bare`, the hits
     /// of `Scene::intersect_stream` and `Scene::any_hit_stream` without
@@ -147,9 +150,10 @@ pub fn trace_stream(scene: &Scene<Triangles>, rays: &[Ray], any_hit: bool, out: 
         });
 }
 
-/// Closest hits of every ray, in parallel, eight consecutive rays traced
-/// together as a packet ([`Scene::intersect8`]), into hit records.
-pub fn trace_packets(scene: &Scene<Triangles>, rays: &[Ray], out: &mut [HitRecord]) {
+/// Closest hits (or with `any_hit` any hits) of every ray, in parallel,
+/// eight consecutive rays traced together as a packet
+/// ([`Scene::intersect8`], [`Scene::any_hit8`]), into hit records.
+pub fn trace_packets(scene: &Scene<Triangles>, rays: &[Ray], any_hit: bool, out: &mut [HitRecord]) {
     const _: () = assert!(CHUNK.is_multiple_of(LANES));
     out.par_chunks_mut(CHUNK)
         .zip(rays.par_chunks(CHUNK))
@@ -158,12 +162,21 @@ pub fn trace_packets(scene: &Scene<Triangles>, rays: &[Ray], out: &mut [HitRecor
             for packet in rays.chunks(LANES) {
                 let o = outs.next().expect("as many records as rays");
                 if let Ok(packet) = <&[Ray; LANES]>::try_from(packet) {
-                    for (o, h) in o.iter_mut().zip(scene.intersect8_bare(packet)) {
+                    let hits = if any_hit {
+                        scene.any_hit8_bare(packet)
+                    } else {
+                        scene.intersect8_bare(packet)
+                    };
+                    for (o, h) in o.iter_mut().zip(hits) {
                         *o = record(h);
                     }
                 } else {
                     for (o, r) in o.iter_mut().zip(packet) {
-                        *o = record(scene.intersect_bare(r));
+                        *o = record(if any_hit {
+                            scene.any_hit_bare(r)
+                        } else {
+                            scene.intersect_bare(r)
+                        });
                     }
                 }
             }
@@ -229,7 +242,7 @@ pub fn run(args: &Args) -> Result<()> {
         let start = Instant::now();
         pool.install(|| {
             if args.packets {
-                trace_packets(&scene, &rays, &mut hits);
+                trace_packets(&scene, &rays, args.any_hit, &mut hits);
             } else if args.stream {
                 trace_stream(&scene, &rays, args.any_hit, &mut hits);
             } else {
