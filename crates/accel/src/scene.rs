@@ -630,53 +630,14 @@ impl<P: Primitives> Scene<P> {
     /// rays at once. Other rays, and other structures, are traced one by
     /// one.
     pub fn intersect8(&self, rays: &[Ray; LANES]) -> [Option<Hit>; LANES] {
-        let best = self.closest8(rays);
+        let best = self.packet8::<false>(rays);
         std::array::from_fn(|i| best[i].map(|(prim, h)| self.hit(prim, &rays[i], h)))
     }
 
     /// [`Self::intersect8`] without the normals: the same hits.
     pub fn intersect8_bare(&self, rays: &[Ray; LANES]) -> [Option<BareHit>; LANES] {
-        self.closest8(rays)
+        self.packet8::<false>(rays)
             .map(|b| b.map(|(prim, h)| self.bare(prim, h)))
-    }
-
-    /// The primitives (in storage order) and hits of [`Self::intersect8`].
-    fn closest8(&self, rays: &[Ray; LANES]) -> [Option<(u32, PrimHit)>; LANES] {
-        let (Some(wide), Some(p)) = (self.wide_blocks(), Packet8::new(rays)) else {
-            return rays.each_ref().map(|r| self.closest(r, &mut NoStats));
-        };
-        let mut best: [Option<(u32, PrimHit)>; LANES] = [None; LANES];
-        let mut tmax: [f32; LANES] = std::array::from_fn(|i| rays[i].tmax());
-        let mut leaf = |first: u32, count: u32, lanes: u32, tmax: &mut [f32; LANES]| {
-            // A leaf tested lane by lane takes one block test per lane and
-            // block; triangle by triangle, one packet test per primitive.
-            // Fine meshes make leaves that few lanes reach: then the first.
-            if lanes.count_ones() * count.div_ceil(BLOCK as u32) < count {
-                let mut m = lanes;
-                while m != 0 {
-                    let i = m.trailing_zeros() as usize;
-                    m &= m - 1;
-                    self.leaf_closest(&rays[i], first, count, &mut tmax[i], &mut best[i]);
-                }
-                return;
-            }
-            self.prims.intersect_packet_run(
-                first,
-                count,
-                &p,
-                lanes,
-                tmax,
-                &mut |i, prim, h, tmax| {
-                    self.offer(&mut best[i], &mut tmax[i], prim, h);
-                },
-            );
-        };
-        match wide {
-            WideRef::W4(b) => b.traverse_packet(&p, &mut tmax, &mut leaf),
-            WideRef::W8(b) => b.traverse_packet(&p, &mut tmax, &mut leaf),
-            WideRef::W2(b) => b.traverse_packet(&p, &mut tmax, &mut leaf),
-        }
-        best
     }
 
     /// Any hit of each of eight rays (shadow rays from neighbouring
@@ -688,41 +649,51 @@ impl<P: Primitives> Scene<P> {
     /// drops out at its first hit; other rays, and other structures, are
     /// traced one by one.
     pub fn any_hit8(&self, rays: &[Ray; LANES]) -> [Option<Hit>; LANES] {
-        let found = self.first8(rays);
+        let found = self.packet8::<true>(rays);
         std::array::from_fn(|i| found[i].map(|(prim, h)| self.hit(prim, &rays[i], h)))
     }
 
     /// [`Self::any_hit8`] without the normals: the same hits.
     pub fn any_hit8_bare(&self, rays: &[Ray; LANES]) -> [Option<BareHit>; LANES] {
-        self.first8(rays)
+        self.packet8::<true>(rays)
             .map(|b| b.map(|(prim, h)| self.bare(prim, h)))
     }
 
     /// Whether each of eight rays hits anything: [`Self::any_hit8`]'s
     /// answer without a hit made.
     pub fn occluded8(&self, rays: &[Ray; LANES]) -> [bool; LANES] {
-        self.first8(rays).map(|f| f.is_some())
+        self.packet8::<true>(rays).map(|f| f.is_some())
     }
 
-    /// The primitives (in storage order) and hits of [`Self::any_hit8`].
-    fn first8(&self, rays: &[Ray; LANES]) -> [Option<(u32, PrimHit)>; LANES] {
+    /// The primitives (in storage order) and hits of [`Self::intersect8`],
+    /// or with `ANY` of [`Self::any_hit8`].
+    fn packet8<const ANY: bool>(&self, rays: &[Ray; LANES]) -> [Option<(u32, PrimHit)>; LANES] {
         let (Some(wide), Some(p)) = (self.wide_blocks(), Packet8::new(rays)) else {
-            return rays.each_ref().map(|r| self.first_hit(r, &mut NoStats));
+            return rays.each_ref().map(|r| {
+                if ANY {
+                    self.first_hit(r, &mut NoStats)
+                } else {
+                    self.closest(r, &mut NoStats)
+                }
+            });
         };
-        let mut found: [Option<(u32, PrimHit)>; LANES] = [None; LANES];
+        let mut best: [Option<(u32, PrimHit)>; LANES] = [None; LANES];
         let mut tmax: [f32; LANES] = std::array::from_fn(|i| rays[i].tmax());
-        // A lane that has a hit is done: its bound goes to -inf, which
-        // every later box and triangle test of the lane fails.
+        // Any hit: a lane that has one is done, its bound set to -inf,
+        // which every later box and triangle test of the lane fails.
         let mut leaf = |first: u32, count: u32, lanes: u32, tmax: &mut [f32; LANES]| {
-            // Lane by lane where few lanes reach a leaf of several blocks,
-            // as for closest hits.
+            // A leaf tested lane by lane takes one block test per lane and
+            // block; triangle by triangle, one packet test per primitive.
+            // Fine meshes make leaves that few lanes reach: then the first.
             if lanes.count_ones() * count.div_ceil(BLOCK as u32) < count {
                 let mut m = lanes;
                 while m != 0 {
                     let i = m.trailing_zeros() as usize;
                     m &= m - 1;
-                    if let Some(f) = self.leaf_any(&rays[i], first, count) {
-                        found[i] = Some(f);
+                    if !ANY {
+                        self.leaf_closest(&rays[i], first, count, &mut tmax[i], &mut best[i]);
+                    } else if let Some(f) = self.leaf_any(&rays[i], first, count) {
+                        best[i] = Some(f);
                         tmax[i] = f32::NEG_INFINITY;
                     }
                 }
@@ -735,8 +706,10 @@ impl<P: Primitives> Scene<P> {
                 lanes,
                 tmax,
                 &mut |i, prim, h, tmax| {
-                    if found[i].is_none() {
-                        found[i] = Some((prim, h));
+                    if !ANY {
+                        self.offer(&mut best[i], &mut tmax[i], prim, h);
+                    } else if best[i].is_none() {
+                        best[i] = Some((prim, h));
                         tmax[i] = f32::NEG_INFINITY;
                     }
                 },
@@ -747,7 +720,7 @@ impl<P: Primitives> Scene<P> {
             WideRef::W8(b) => b.traverse_packet(&p, &mut tmax, &mut leaf),
             WideRef::W2(b) => b.traverse_packet(&p, &mut tmax, &mut leaf),
         }
-        found
+        best
     }
 
     /// The closest hits of many rays: `out[i]` is [`Self::intersect`] of
