@@ -105,9 +105,9 @@ pub struct BuildConfig {
     /// blocks ([`Self::leaf_block`]) where that is more, which makes it 16
     /// for the binned and sweep BVHs over triangles: their leaves of 9 to
     /// 16 triangles take two 8-wide block tests, and the fewer levels
-    /// traced random rays 4-13% faster on the four meshes of
-    /// `../shared/meshes` with more than 10,000 triangles (README,
-    /// *Binary BVH leaves*).
+    /// traced random and diffuse rays 3-10% faster on the four meshes of
+    /// `../shared/meshes` with more than 10,000 triangles, for at most 6%
+    /// lost on some coherent ones (README, *Binary BVH leaves*).
     pub max_leaf: Option<usize>,
     /// Cost of one traversal step relative to one primitive test, for SAH
     /// builders. Higher values make leaves larger.
