@@ -1,7 +1,7 @@
 //! `raymesh-ab [--baseline OTHER] MESH [--rays RAYS.npy | --workload W
 //! --size N] [--accel A] [--query closest,any-hit] [--packets | --stream]
 //! [--chunk C] [--rounds R] [--instances K] [--spatial-splits [F]]
-//! [--optimize] [--json]`:
+//! [--optimize] [--set K=V,...] [--baseline-set K=V,...] [--json]`:
 //! two builds of raymesh on the same rays, taking turns chunk by chunk, so
 //! that a change of a few percent can be told from this machine's drift.
 //!
@@ -15,7 +15,8 @@
 //! and a comparison of two separate runs cannot resolve a 3% change.
 //! The checksums say whether both builds returned the same hits, bit for
 //! bit. Without `--baseline` the build is compared with itself: the spread
-//! of that run is the noise floor.
+//! of that run is the noise floor; with `--set` and `--baseline-set`, two
+//! build settings of one binary are compared (a leaf size, a cost).
 
 use anyhow::{bail, ensure, Context, Result};
 use clap::Parser;
@@ -84,6 +85,17 @@ struct Args {
     /// Reinsertion optimization, as `raymesh raycast --optimize`.
     #[arg(long)]
     optimize: bool,
+    /// Build settings of this build, `KEY=VALUE` comma-separated, over
+    /// the defaults (and `--spatial-splits`, `--optimize`): `max_leaf`,
+    /// `traversal_cost`, `bins`, `leaf_block`, `grid_density`,
+    /// `spatial_splits`, `optimize`. With `--baseline-set` and no
+    /// `--baseline`, one binary compares two settings.
+    #[arg(long, value_name = "KEY=VALUE,...")]
+    set: Option<String>,
+    /// Build settings of the baseline, as `--set` (a baseline binary from
+    /// before `--set` existed refuses them).
+    #[arg(long, value_name = "KEY=VALUE,...")]
+    baseline_set: Option<String>,
     /// One JSON object a query instead of the text report.
     #[arg(long)]
     json: bool,
@@ -138,6 +150,13 @@ struct Report {
     chunk_q3: f64,
     /// Whether both builds returned the same hits, bit for bit.
     same_hits: bool,
+    /// `--set` and `--baseline-set`, as given.
+    set: Option<String>,
+    baseline_set: Option<String>,
+    /// Nodes of each side's structure, where both are this binary's with
+    /// other settings (the parent builds both to say so).
+    nodes: Option<usize>,
+    baseline_nodes: Option<usize>,
 }
 
 fn main() -> Result<()> {
@@ -152,12 +171,67 @@ fn main() -> Result<()> {
 fn build_scene(args: &Args) -> Result<Scene<Triangles>> {
     let mesh = read_mesh(&args.mesh)?;
     let tm = TriangleMesh::new(mesh.positions.clone(), mesh.triangles());
-    let config = BuildConfig {
+    let config = config(args, args.set.as_deref())?;
+    Ok(Scene::from_mesh_with(&tm, args.accel, &config))
+}
+
+/// The build settings of the arguments with `set` (`--set`'s form)
+/// applied over them.
+fn config(args: &Args, set: Option<&str>) -> Result<BuildConfig> {
+    let mut config = BuildConfig {
         spatial_splits: args.spatial_splits.unwrap_or(0.0),
         optimize: args.optimize,
         ..BuildConfig::default()
     };
-    Ok(Scene::from_mesh_with(&tm, args.accel, &config))
+    for item in set.into_iter().flat_map(|s| s.split(',')) {
+        let item = item.trim();
+        if item.is_empty() {
+            continue;
+        }
+        let (key, value) = item
+            .split_once('=')
+            .with_context(|| format!("setting '{item}': expected KEY=VALUE"))?;
+        let (key, value) = (key.trim(), value.trim());
+        let bad = |what: &str| format!("setting {key}: '{value}' is not {what}");
+        match key {
+            "max_leaf" => {
+                let n: usize = value.parse().with_context(|| bad("a count"))?;
+                ensure!(n > 0, "{}", bad("a count of 1 or more"));
+                config.max_leaf = Some(n);
+            }
+            "leaf_block" => {
+                let n: usize = value.parse().with_context(|| bad("a count"))?;
+                ensure!(n > 0, "{}", bad("a count of 1 or more"));
+                config.leaf_block = Some(n);
+            }
+            "bins" => {
+                let n: usize = value.parse().with_context(|| bad("a count"))?;
+                ensure!((2..=64).contains(&n), "{}", bad("between 2 and 64"));
+                config.bins = n;
+            }
+            "traversal_cost" | "grid_density" | "spatial_splits" => {
+                let x: f32 = value.parse().with_context(|| bad("a number"))?;
+                ensure!(
+                    x.is_finite() && x >= 0.0,
+                    "{}",
+                    bad("a number of 0 or more")
+                );
+                match key {
+                    "traversal_cost" => config.traversal_cost = x,
+                    "grid_density" => config.grid_density = x,
+                    _ => config.spatial_splits = x,
+                }
+            }
+            "optimize" => {
+                config.optimize = value.parse().with_context(|| bad("true or false"))?;
+            }
+            _ => bail!(
+                "unknown setting '{key}'; expected max_leaf, traversal_cost, bins, \
+                 leaf_block, grid_density, spatial_splits or optimize"
+            ),
+        }
+    }
+    Ok(config)
 }
 
 /// The child: builds the scene, reads the rays, then answers each line
@@ -270,10 +344,14 @@ impl Server {
         name: &'static str,
         binary: &Path,
         args: &Args,
+        set: Option<&str>,
         rays: &Path,
         n: usize,
     ) -> Result<Self> {
         let mut cmd = Command::new(binary);
+        if let Some(set) = set {
+            cmd.arg(format!("--set={set}"));
+        }
         cmd.arg("--serve")
             .arg(&args.mesh)
             .arg("--rays")
@@ -374,6 +452,11 @@ fn compare(args: &Args) -> Result<()> {
     ensure!(args.chunk > 0, "--chunk must be at least 1");
     ensure!(args.rounds > 0, "--rounds must be at least 1");
     ensure!(args.instances > 0, "--instances must be at least 1");
+    // Settings checked here, so that a typo is named at once, not by a
+    // child after the rays are made.
+    for set in [&args.set, &args.baseline_set] {
+        config(args, set.as_deref())?;
+    }
     let queries: Vec<Query> = args
         .query
         .split(',')
@@ -409,12 +492,35 @@ fn compare(args: &Args) -> Result<()> {
         }
     };
     ensure!(n > 0, "{}: no rays", rays_path.display());
+    // Two settings of this one binary: both structures, as it builds them.
+    let structures = (args.baseline.is_none()
+        && (args.set.is_some() || args.baseline_set.is_some()))
+    .then(|| -> Result<_> {
+        let mesh = read_mesh(&args.mesh)?;
+        let tm = TriangleMesh::new(mesh.positions.clone(), mesh.triangles());
+        let stats = |set: &Option<String>| -> Result<raymesh_accel::AccelStats> {
+            let c = config(args, set.as_deref())?;
+            Ok(Scene::from_mesh_with(&tm, args.accel, &c).stats())
+        };
+        Ok([stats(&args.baseline_set)?, stats(&args.set)?])
+    })
+    .transpose()?;
     // `servers[i]` is instance `i / 2` of the baseline (even `i`) or of
     // this build (odd `i`).
     let mut servers = Vec::new();
     for _ in 0..args.instances {
-        servers.push(Server::start("baseline", &baseline, args, &rays_path, n)?);
-        servers.push(Server::start("this", &this, args, &rays_path, n)?);
+        let base_set = args.baseline_set.as_deref();
+        servers.push(Server::start(
+            "baseline", &baseline, args, base_set, &rays_path, n,
+        )?);
+        servers.push(Server::start(
+            "this",
+            &this,
+            args,
+            args.set.as_deref(),
+            &rays_path,
+            n,
+        )?);
     }
     let chunks: Vec<(usize, usize)> = (0..n)
         .step_by(args.chunk)
@@ -439,6 +545,23 @@ fn compare(args: &Args) -> Result<()> {
             args.rounds,
             args.instances
         );
+        if args.set.is_some() || args.baseline_set.is_some() {
+            let show = |s: &Option<String>| s.clone().unwrap_or_else(|| "defaults".into());
+            println!(
+                "  settings: baseline {}, this build {}",
+                show(&args.baseline_set),
+                show(&args.set)
+            );
+        }
+        if let Some([b, t]) = &structures {
+            let show = |s: &raymesh_accel::AccelStats| {
+                format!(
+                    "{} nodes, depth {}, SAH {:.2}",
+                    s.nodes, s.depth, s.sah_cost
+                )
+            };
+            println!("  structures: baseline {}, this build {}", show(b), show(t));
+        }
     }
     for &query in &queries {
         // One untimed pass each: pages faulted in, caches and predictors warm.
@@ -502,6 +625,10 @@ fn compare(args: &Args) -> Result<()> {
             chunk_q1: quantile(&ratios, 0.25),
             chunk_q3: quantile(&ratios, 0.75),
             same_hits: same,
+            set: args.set.clone(),
+            baseline_set: args.baseline_set.clone(),
+            nodes: structures.as_ref().map(|s| s[1].nodes),
+            baseline_nodes: structures.as_ref().map(|s| s[0].nodes),
         };
         if args.json {
             println!("{}", serde_json::to_string(&report)?);

@@ -104,10 +104,84 @@ fn bad_settings_are_refused() {
         (&["--query", "nearest"][..], "unknown query 'nearest'"),
         (&["--chunk", "0"], "--chunk must be at least 1"),
         (&["--rounds", "0"], "--rounds must be at least 1"),
+        (&["--set", "leaves=4"], "unknown setting 'leaves'"),
+        (
+            &["--baseline-set", "max_leaf"],
+            "setting 'max_leaf': expected KEY=VALUE",
+        ),
+        (
+            &["--set", "max_leaf=0"],
+            "setting max_leaf: '0' is not a count of 1 or more",
+        ),
+        (
+            &["--set", "bins=65"],
+            "setting bins: '65' is not between 2 and 64",
+        ),
+        (
+            &["--set", "traversal_cost=-1"],
+            "is not a number of 0 or more",
+        ),
+        (
+            &["--set", "optimize=yes"],
+            "setting optimize: 'yes' is not true or false",
+        ),
     ] {
         let out = ab(args);
         assert!(!out.status.success(), "{args:?}");
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(err.contains(what), "{args:?}: {err}");
     }
+}
+
+/// One binary, two build settings: leaves of at most 4 against the
+/// default. Closest hits are the same whatever the tree; the report
+/// names both settings.
+#[test]
+fn two_settings_of_one_binary() {
+    let out = ab(&[
+        "--workload",
+        "random",
+        "--size",
+        "24",
+        "--rounds",
+        "1",
+        "--accel",
+        "bvh-binned",
+        "--query",
+        "closest",
+        "--set",
+        "max_leaf=16,traversal_cost=3",
+        "--baseline-set",
+        "max_leaf=4",
+        "--json",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let r: serde_json::Value =
+        serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).expect("one JSON line");
+    assert_eq!(r["same_hits"], true, "{r}");
+    assert_eq!(r["set"], "max_leaf=16,traversal_cost=3", "{r}");
+    assert_eq!(r["baseline_set"], "max_leaf=4", "{r}");
+    // Smaller leaves, more nodes: the settings took.
+    let nodes = |k: &str| r[k].as_u64().unwrap_or_else(|| panic!("{k} in {r}"));
+    assert!(nodes("baseline_nodes") > nodes("nodes"), "{r}");
+    let text = ab(&[
+        "--workload",
+        "random",
+        "--size",
+        "16",
+        "--rounds",
+        "1",
+        "--baseline-set",
+        "bins=8",
+    ]);
+    assert!(text.status.success());
+    let stdout = String::from_utf8_lossy(&text.stdout);
+    assert!(
+        stdout.contains("settings: baseline bins=8, this build defaults"),
+        "{stdout}"
+    );
 }
