@@ -194,15 +194,14 @@ fn config(args: &Args, set: Option<&str>) -> Result<BuildConfig> {
         let (key, value) = (key.trim(), value.trim());
         let bad = |what: &str| format!("setting {key}: '{value}' is not {what}");
         match key {
-            "max_leaf" => {
+            "max_leaf" | "leaf_block" => {
                 let n: usize = value.parse().with_context(|| bad("a count"))?;
                 ensure!(n > 0, "{}", bad("a count of 1 or more"));
-                config.max_leaf = Some(n);
-            }
-            "leaf_block" => {
-                let n: usize = value.parse().with_context(|| bad("a count"))?;
-                ensure!(n > 0, "{}", bad("a count of 1 or more"));
-                config.leaf_block = Some(n);
+                if key == "max_leaf" {
+                    config.max_leaf = Some(n);
+                } else {
+                    config.leaf_block = Some(n);
+                }
             }
             "bins" => {
                 let n: usize = value.parse().with_context(|| bad("a count"))?;
@@ -271,6 +270,10 @@ fn serve(args: &Args) -> Result<()> {
 /// Traces `rays` on this thread and returns a checksum of the hits.
 fn trace(scene: &Scene<Triangles>, rays: &[Ray], query: Query, packets: bool, stream: bool) -> u64 {
     let mut sum = Checksum::default();
+    let one = |r: &Ray| match query {
+        Query::Closest => scene.intersect_bare(r),
+        Query::AnyHit => scene.any_hit_bare(r),
+    };
     if stream {
         let mut hits = vec![None; rays.len().min(1024)];
         for part in rays.chunks(1024) {
@@ -288,21 +291,11 @@ fn trace(scene: &Scene<Triangles>, rays: &[Ray], query: Query, packets: bool, st
                 .into_iter()
                 .for_each(|h| sum.add(h));
             } else {
-                part.iter().for_each(|r| {
-                    sum.add(match query {
-                        Query::Closest => scene.intersect_bare(r),
-                        Query::AnyHit => scene.any_hit_bare(r),
-                    });
-                });
+                part.iter().for_each(|r| sum.add(one(r)));
             }
         }
     } else {
-        for r in rays {
-            sum.add(match query {
-                Query::Closest => scene.intersect_bare(r),
-                Query::AnyHit => scene.any_hit_bare(r),
-            });
-        }
+        rays.iter().for_each(|r| sum.add(one(r)));
     }
     sum.0
 }
