@@ -29,7 +29,9 @@ pub enum BvhBuilder {
     /// cheapest bin boundary wins. O(N) per level.
     BinnedSah,
     /// Full-sweep SAH (MacDonald & Booth 1990): every centroid position on
-    /// every axis is a candidate. Best trees, O(N log N) per level.
+    /// every axis is a candidate. Best trees; the centroids are sorted once
+    /// on each axis, and each split partitions the three orders, so a
+    /// level costs O(N).
     SweepSah,
 }
 
@@ -351,7 +353,17 @@ impl BvhBuilder {
         let (bounds, cbounds) = ctx.bounds_pair(&refs);
         // Zeroed by the system, so only the slots written become resident.
         let mut slots: Vec<Node> = bytemuck::zeroed_vec(2 * n);
-        let tree = ctx.subtree(&mut refs, &mut slots, 0, 1, bounds, cbounds);
+        let mut orders = if self == Self::SweepSah {
+            Sorted::all(&refs)
+        } else {
+            Default::default()
+        };
+        let sorted = (self == Self::SweepSah).then(|| {
+            let [x, y, z] = &mut orders;
+            Sorted([x.as_mut_slice(), y, z])
+        });
+        let tree = ctx.subtree(&mut refs, sorted, &mut slots, 0, 1, bounds, cbounds);
+        drop(orders);
         // The references (32 bytes a primitive) go before the tree is
         // flattened, so that they never coexist with both of its copies.
         let depth = tree.depth() as u32;
@@ -471,9 +483,11 @@ impl Ctx<'_> {
 
     /// Builds the subtree over `ids` (which start at `offset` in the
     /// permutation), splitting large nodes' children across rayon tasks.
+    #[allow(clippy::too_many_arguments)]
     fn subtree<'s>(
         &self,
         ids: &mut [PrimRef],
+        mut sorted: Option<Sorted<'_>>,
         slots: &'s mut [Node],
         offset: u32,
         depth: usize,
@@ -494,6 +508,7 @@ impl Ctx<'_> {
                 &mut new_bins(),
                 0,
                 ids,
+                sorted,
                 offset,
                 depth,
                 bounds,
@@ -502,7 +517,14 @@ impl Ctx<'_> {
             return Subtree::Flat(nodes);
         }
         let mut root = Node::new(bounds);
-        match self.split(&mut new_bins(), ids, depth, bounds, cbounds) {
+        match self.split(
+            &mut new_bins(),
+            ids,
+            sorted.as_mut(),
+            depth,
+            bounds,
+            cbounds,
+        ) {
             None => {
                 root.index = offset;
                 root.count = ids.len() as u32;
@@ -513,17 +535,18 @@ impl Ctx<'_> {
             }
             Some(mid) => {
                 let (left, right) = ids.split_at_mut(mid);
+                let (ls, rs) = Sorted::split_at(sorted, mid);
                 let (lslots, rslots) = nodes.nodes.split_at_mut(2 * mid);
                 // Each side bounds its own primitives, on its own task.
                 let (l, r) = rayon::join(
                     || {
                         let (b, c) = self.bounds_pair(left);
-                        self.subtree(left, lslots, offset, depth + 1, b, c)
+                        self.subtree(left, ls, lslots, offset, depth + 1, b, c)
                     },
                     || {
                         let (b, c) = self.bounds_pair(right);
                         let o = offset + mid as u32;
-                        self.subtree(right, rslots, o, depth + 1, b, c)
+                        self.subtree(right, rs, rslots, o, depth + 1, b, c)
                     },
                 );
                 Subtree::Split(root, Box::new(l), Box::new(r))
@@ -537,6 +560,7 @@ impl Ctx<'_> {
         &self,
         bins: &mut Bins,
         ids: &mut [PrimRef],
+        sorted: Option<&mut Sorted<'_>>,
         depth: usize,
         bounds: Aabb,
         cbounds: Aabb,
@@ -544,7 +568,11 @@ impl Ctx<'_> {
         if ids.len() <= 1 {
             None
         } else if depth >= SAH_DEPTH_LIMIT {
-            Some(self.split_by_count(ids, cbounds))
+            let mid = self.split_by_count(ids, cbounds);
+            if let Some(sorted) = sorted {
+                sorted.resort(ids, mid);
+            }
+            Some(mid)
         } else if self.builder != BvhBuilder::Median && self.leaf_wins(ids.len()) {
             None
         } else {
@@ -553,7 +581,10 @@ impl Ctx<'_> {
                     (ids.len() > MEDIAN_LEAF).then(|| self.split_median(ids, (depth - 1) % 3))
                 }
                 BvhBuilder::BinnedSah => self.split_binned(bins, ids, bounds, cbounds),
-                BvhBuilder::SweepSah => self.split_sweep(ids, bounds, cbounds),
+                BvhBuilder::SweepSah => {
+                    let sorted = sorted.expect("the sweep builder's orders");
+                    self.split_sweep(ids, sorted, bounds, cbounds)
+                }
             }
         }
     }
@@ -568,13 +599,14 @@ impl Ctx<'_> {
         bins: &mut Bins,
         node: usize,
         ids: &mut [PrimRef],
+        mut sorted: Option<Sorted<'_>>,
         offset: u32,
         depth: usize,
         bounds: Aabb,
         cbounds: Aabb,
     ) {
         nodes[node] = Node::new(bounds);
-        match self.split(bins, ids, depth, bounds, cbounds) {
+        match self.split(bins, ids, sorted.as_mut(), depth, bounds, cbounds) {
             None => {
                 let n = &mut nodes[node];
                 n.index = offset;
@@ -587,11 +619,12 @@ impl Ctx<'_> {
                 nodes.push(Node::new(Aabb::EMPTY));
                 nodes.push(Node::new(Aabb::EMPTY));
                 let (left, right) = ids.split_at_mut(mid);
+                let (ls, rs) = Sorted::split_at(sorted, mid);
                 let (lb, lc) = self.bounds_pair(left);
                 let (rb, rc) = self.bounds_pair(right);
-                self.build(nodes, bins, first, left, offset, depth + 1, lb, lc);
+                self.build(nodes, bins, first, left, ls, offset, depth + 1, lb, lc);
                 let (o, d) = (offset + mid as u32, depth + 1);
-                self.build(nodes, bins, first + 1, right, o, d, rb, rc);
+                self.build(nodes, bins, first + 1, right, rs, o, d, rb, rc);
             }
         }
     }
@@ -858,69 +891,159 @@ impl Ctx<'_> {
         }
     }
 
-    /// Full-sweep SAH over every centroid position on every axis.
-    fn split_sweep(&self, ids: &mut [PrimRef], bounds: Aabb, cbounds: Aabb) -> Option<usize> {
-        let n = ids.len();
-        let mut best: Option<(f32, usize, usize)> = None;
-        let mut order = Vec::with_capacity(n);
-        // The references in each axis's order, and the best axis's so far
-        // (kept for the split).
-        let (mut sorted, mut best_sorted) = (Vec::with_capacity(n), Vec::with_capacity(n));
-        let mut right_area = vec![0.0f32; n];
-        for axis in 0..3 {
-            sweep_order(ids, axis, &mut order);
-            sorted.clear();
-            sorted.extend(order.iter().map(|&(_, i)| ids[i as usize]));
-            let mut acc = Bin::EMPTY;
-            for (area, r) in right_area[1..].iter_mut().zip(&sorted[1..]).rev() {
-                let (lo, hi) = r.corners();
-                acc.add(lo, hi);
-                *area = acc.half_area();
-            }
-            let mut left = Bin::EMPTY;
-            let mut improved = false;
-            for (k, (r, &right)) in (1..).zip(sorted.iter().zip(&right_area[1..])) {
-                let (lo, hi) = r.corners();
-                left.add(lo, hi);
-                let cost = left.half_area() * self.blocks(k) + right * self.blocks(n - k);
-                if best.is_none_or(|(bc, _, _)| cost < bc) {
-                    best = Some((cost, axis, k));
-                    improved = true;
-                }
-            }
-            if improved {
-                std::mem::swap(&mut sorted, &mut best_sorted);
-            }
+    /// Full-sweep SAH over every centroid position on every axis, reading
+    /// the node's primitives in each axis's order from `sorted`, which the
+    /// split leaves in order for both children.
+    fn split_sweep(
+        &self,
+        ids: &mut [PrimRef],
+        sorted: &mut Sorted<'_>,
+        bounds: Aabb,
+        cbounds: Aabb,
+    ) -> Option<usize> {
+        let mut best = None;
+        let mut right_area = vec![0.0f32; ids.len()];
+        for (axis, order) in sorted.0.iter().enumerate() {
+            self.sweep_axis(axis, order, &mut right_area, &mut best);
         }
-        let area = bounds.half_area();
-        self.decide(
+        let mut swept = false;
+        let split = self.decide(
             ids,
             cbounds,
             best.map(|(cst, a, _)| (cst, a)),
-            area,
+            bounds.half_area(),
             |ids| {
-                ids.copy_from_slice(&best_sorted);
-                best.expect("a split was found").2
+                let (_, axis, k) = best.expect("a split was found");
+                sorted.split_by(axis, k);
+                ids.copy_from_slice(sorted.0[axis]);
+                swept = true;
+                k
             },
-        )
+        );
+        // A split by count (no split found, or none where the node's box
+        // has no area) rearranged `ids` itself.
+        if let (Some(mid), false) = (split, swept) {
+            sorted.resort(ids, mid);
+        }
+        split
     }
 }
 
-/// Fills `order` with the positions in `ids` of its primitives sorted by
-/// centroid on `axis` (in `f32::total_cmp`'s order), ties broken by
+impl Ctx<'_> {
+    /// Sweeps the primitives of a node in `axis`'s order: the SAH cost of
+    /// each split into a prefix and the rest, kept in `best` as `(cost,
+    /// axis, primitives left)` where lower than what `best` holds (earlier
+    /// axes and positions win ties). `right_area` is scratch, as long as
+    /// `order`.
+    fn sweep_axis(
+        &self,
+        axis: usize,
+        order: &[PrimRef],
+        right_area: &mut [f32],
+        best: &mut Option<(f32, usize, usize)>,
+    ) {
+        let n = order.len();
+        let mut acc = Bin::EMPTY;
+        for (area, r) in right_area[1..].iter_mut().zip(&order[1..]).rev() {
+            let (lo, hi) = r.corners();
+            acc.add(lo, hi);
+            *area = acc.half_area();
+        }
+        let mut left = Bin::EMPTY;
+        for (k, (r, &right)) in (1..).zip(order.iter().zip(&right_area[1..])) {
+            let (lo, hi) = r.corners();
+            left.add(lo, hi);
+            let cost = left.half_area() * self.blocks(k) + right * self.blocks(n - k);
+            if best.is_none_or(|(bc, _, _)| cost < bc) {
+                *best = Some((cost, axis, k));
+            }
+        }
+    }
+}
+
+/// The sweep builder's three orders of a node's primitives, by centroid
+/// on x, y and z ([`sweep_key`]: `f32::total_cmp`'s order, ties broken by
 /// primitive index, so that a split does not depend on the order the
-/// node's primitives came in. Each is sorted as one integer key
-/// ([`sweep_key`]) beside its position: sorting the references with a
-/// comparison that recomputed both centroids took the sweep builder
-/// several times as long.
-fn sweep_order(ids: &[PrimRef], axis: usize, order: &mut Vec<(u64, u32)>) {
-    order.clear();
-    order.extend(
-        (0u32..)
-            .zip(ids)
-            .map(|(i, r)| (sweep_key(r.centroid()[axis], r.id()), i)),
-    );
-    order.sort_unstable();
+/// node's primitives came in). Sorted once for the whole build; each
+/// split then partitions the other two orders stably, which keeps them
+/// sorted for the children: O(N) a node instead of three sorts, which
+/// made the build O(N log² N). Wald and Havran build k-d trees so ("On
+/// building fast kd-trees for ray tracing, and on doing that in
+/// O(N log N)", 2006).
+struct Sorted<'a>([&'a mut [PrimRef]; 3]);
+
+impl<'a> Sorted<'a> {
+    /// The references `refs` (primitive `i` at index `i`) in each axis's
+    /// order.
+    fn all(refs: &[PrimRef]) -> [Vec<PrimRef>; 3] {
+        std::array::from_fn(|axis| {
+            // Sorted as integer keys, each with its primitive's index in
+            // its low bits: comparing references by their centroids took
+            // several times as long.
+            let mut keys: Vec<u64> = refs
+                .par_iter()
+                .map(|r| sweep_key(r.centroid()[axis], r.id()))
+                .collect();
+            keys.par_sort_unstable();
+            keys.par_iter().map(|&k| refs[k as u32 as usize]).collect()
+        })
+    }
+
+    /// The orders of the first `mid` primitives and of the rest.
+    fn split_at(this: Option<Self>, mid: usize) -> (Option<Self>, Option<Self>) {
+        let Some(Self([x, y, z])) = this else {
+            return (None, None);
+        };
+        let ((x0, x1), (y0, y1), (z0, z1)) = (
+            x.split_at_mut(mid),
+            y.split_at_mut(mid),
+            z.split_at_mut(mid),
+        );
+        (Some(Self([x0, y0, z0])), Some(Self([x1, y1, z1])))
+    }
+
+    /// After a sweep split at the `k`-th primitive in `axis`'s order: the
+    /// other two orders partitioned stably, that split's left side first.
+    fn split_by(&mut self, axis: usize, k: usize) {
+        let key = |r: &PrimRef| sweep_key(r.centroid()[axis], r.id());
+        let pivot = key(&self.0[axis][k]);
+        let mut right = Vec::with_capacity(self.0[axis].len() - k);
+        for (b, order) in self.0.iter_mut().enumerate() {
+            if b != axis {
+                stable_partition(order, &mut right, |r| key(r) < pivot);
+            }
+        }
+    }
+
+    /// After a split of `ids` that no order gives (by count): each order
+    /// made again from its side of `ids` (`mid` primitives left).
+    fn resort(&mut self, ids: &[PrimRef], mid: usize) {
+        for (axis, order) in self.0.iter_mut().enumerate() {
+            order.copy_from_slice(ids);
+            let key = |r: &PrimRef| sweep_key(r.centroid()[axis], r.id());
+            let (l, r) = order.split_at_mut(mid);
+            l.sort_unstable_by_key(key);
+            r.sort_unstable_by_key(key);
+        }
+    }
+}
+
+/// Moves the items of `v` for which `left` holds to its front, in their
+/// order, and the others behind them, in theirs (`scratch` holds those
+/// meanwhile).
+fn stable_partition<T: Copy>(v: &mut [T], scratch: &mut Vec<T>, left: impl Fn(&T) -> bool) {
+    scratch.clear();
+    let mut k = 0;
+    for i in 0..v.len() {
+        let x = v[i];
+        if left(&x) {
+            v[k] = x;
+            k += 1;
+        } else {
+            scratch.push(x);
+        }
+    }
+    v[k..].copy_from_slice(scratch);
 }
 
 /// A key whose integer order is `c`'s `f32::total_cmp` order, then `id`'s.
@@ -1308,6 +1431,86 @@ mod tests {
                     assert_eq!(leaves.len() == 1, n <= limit, "{what}: {leaves:?}");
                 }
             }
+        }
+    }
+
+    /// The sweep builder, which sorts once and partitions, splits every
+    /// node where a sweep over the node's primitives sorted afresh on each
+    /// axis splits it (the same primitives left), with copies of boxes
+    /// (equal centroids, ordered by index), nodes whose box has no area or
+    /// a NaN one (split by count, after which the orders are made again:
+    /// a flat set with one box infinitely long, whose half without it the
+    /// sweep then splits), and block sizes 1 and 8.
+    #[test]
+    fn sweep_splits_where_a_fresh_sort_would() {
+        let mut b = crate::test_util::clustered_boxes(3000);
+        for i in 0..300 {
+            b[3 * i + 1] = b[3 * i];
+        }
+        // Forty points at one spot: no sweep split has area there.
+        for k in b.iter_mut().skip(2000).take(40) {
+            *k = Aabb::new(Vec3::splat(0.5), Vec3::splat(0.5));
+        }
+        let mut flat: Vec<Aabb> = crate::test_util::clustered_boxes(500)
+            .iter()
+            .map(|k| Aabb::new(k.min.with_z(0.0), k.max.with_z(0.0)))
+            .collect();
+        flat[7].max.x = f32::INFINITY;
+        // The slots (first, count) of node `i`'s primitives.
+        fn range(nodes: &[Node], i: usize) -> (usize, usize) {
+            let n = &nodes[i];
+            if n.is_leaf() {
+                return (n.index as usize, n.count as usize);
+            }
+            let (lf, lc) = range(nodes, n.index as usize);
+            let (rf, rc) = range(nodes, n.index as usize + 1);
+            assert_eq!(lf + lc, rf, "a subtree's slots are contiguous");
+            (lf, lc + rc)
+        }
+        for (b, leaf_block) in [(&b, None), (&b, Some(8)), (&flat, None)] {
+            let config = BuildConfig {
+                leaf_block,
+                ..BuildConfig::default()
+            };
+            let bvh = BvhBuilder::SweepSah.build(b, &config);
+            bvh.validate(b).unwrap();
+            let ctx = Ctx::new(&config, BvhBuilder::SweepSah, PAR_SUBTREE);
+            let (nodes, ids) = (bvh.nodes(), bvh.prim_ids());
+            let (mut swept, mut by_count) = (0, 0);
+            for (i, n) in nodes.iter().enumerate() {
+                if i == 1 || n.is_leaf() {
+                    continue;
+                }
+                let (first, count) = range(&nodes, i);
+                let refs: Vec<PrimRef> = ids[first..first + count]
+                    .iter()
+                    .map(|&p| PrimRef::new(b[p as usize], p))
+                    .collect();
+                let mut best = None;
+                let mut right_area = vec![0.0; count];
+                let orders: Vec<Vec<PrimRef>> = (0..3)
+                    .map(|axis| {
+                        let mut order = refs.clone();
+                        order.sort_by_key(|r| sweep_key(r.centroid()[axis], r.id()));
+                        ctx.sweep_axis(axis, &order, &mut right_area, &mut best);
+                        order
+                    })
+                    .collect();
+                let (_, axis, k) = best.expect("two primitives or more");
+                let (lf, lc) = range(&nodes, n.index as usize);
+                let mut left = ids[lf..lf + lc].to_vec();
+                left.sort_unstable();
+                let mut want: Vec<u32> = orders[axis][..k].iter().map(PrimRef::id).collect();
+                want.sort_unstable();
+                if n.bounds().half_area() > 0.0 {
+                    assert_eq!(left, want, "node {i}, block {leaf_block:?}");
+                    swept += 1;
+                } else {
+                    assert_eq!(lc, count / 2, "split by count");
+                    by_count += 1;
+                }
+            }
+            assert!(swept > 50 && by_count > 0, "{swept} {by_count}");
         }
     }
 
