@@ -927,9 +927,7 @@ impl Ctx<'_> {
         }
         split
     }
-}
 
-impl Ctx<'_> {
     /// Sweeps the primitives of a node in `axis`'s order: the SAH cost of
     /// each split into a prefix and the rest, kept in `best` as `(cost,
     /// axis, primitives left)` where lower than what `best` holds (earlier
@@ -976,6 +974,7 @@ impl<'a> Sorted<'a> {
     /// The references `refs` (primitive `i` at index `i`) in each axis's
     /// order.
     fn all(refs: &[PrimRef]) -> [Vec<PrimRef>; 3] {
+        debug_assert!((0u32..).zip(refs).all(|(i, r)| r.id() == i));
         std::array::from_fn(|axis| {
             // Sorted as integer keys, each with its primitive's index in
             // its low bits: comparing references by their centroids took
