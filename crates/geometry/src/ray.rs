@@ -27,6 +27,7 @@ pub struct Ray {
 
 impl Ray {
     /// Makes a ray over `[tmin, tmax]`; `tmax` may be `f32::INFINITY`.
+    #[inline]
     #[must_use]
     pub fn new(origin: Vec3, dir: Vec3, tmin: f32, tmax: f32) -> Self {
         // Without a branch: a ray is made per query (camera sample, shadow
