@@ -42,7 +42,7 @@ pub use prims::{
 };
 pub use raymesh_geometry::{Aabb, Ray, Vec3};
 pub use scene::{BareHit, Hit, Scene, Surface};
-pub use simd::{set_simd_enabled, Avx2, BlockRay};
+pub use simd::{set_avx512_enabled, set_simd_enabled, Avx2, BlockRay};
 pub use stats::{AccelStats, CountStats, NoStats, RayCounter};
 
 /// Leaf callback of a traversal: tests primitive `prim` and returns the

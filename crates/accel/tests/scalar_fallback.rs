@@ -8,30 +8,11 @@
 use raymesh_accel::*;
 
 mod common;
-use common::{load, uniform};
+use common::{load, sphere_rays};
 
 /// Hit as bits, so that `-0.0` and `0.0` differ and NaN compares.
 fn key(h: Option<Hit>) -> Option<(u32, u32, u32, u32)> {
     h.map(|h| (h.prim, h.t.to_bits(), h.u.to_bits(), h.v.to_bits()))
-}
-
-/// Rays from a sphere around the mesh toward random points in its box, and
-/// rays aimed exactly at vertices and edge midpoints (zero edge functions).
-fn rays(m: &TriangleMesh, n: usize) -> Vec<Ray> {
-    let b = m.positions.iter().fold(Aabb::EMPTY, |a, p| a.grow(*p));
-    let (c, d) = (b.centroid(), b.diagonal());
-    let mut next = uniform(0x2545_f491_4f6c_dd1d);
-    let mut out = Vec::new();
-    for i in 0..n {
-        let dir = Vec3::new(next() - 0.5, next() - 0.5, next() - 0.5);
-        let o = c + dir.normalize_or_zero() * 0.75 * d;
-        let p = b.min + (b.max - b.min) * Vec3::new(next(), next(), next());
-        out.push(Ray::infinite(o, p - o));
-        let [a, bb, _] = m.corners((i % m.len()) as u32);
-        out.push(Ray::infinite(o, a - o));
-        out.push(Ray::infinite(o, (a + bb) * 0.5 - o));
-    }
-    out
 }
 
 #[test]
@@ -51,7 +32,7 @@ fn fallbacks_agree_with_brute_force_and_with_the_kernels() {
         "degtri_sliding.off",
     ] {
         let m = load(name);
-        let rays = rays(&m, 400);
+        let rays = sphere_rays(&m, 400);
         let brute = Scene::build(m.clone(), AccelKind::Brute);
         let want: Vec<_> = rays.iter().map(|r| key(brute.intersect(r))).collect();
         assert!(want.iter().filter(|w| w.is_some()).count() > rays.len() / 10);

@@ -1,7 +1,7 @@
 //! Meshes, hit keys and generators shared by the integration tests.
 
 use proptest::prelude::*;
-use raymesh_accel::{BareHit, Hit, TriangleMesh, Vec3};
+use raymesh_accel::{Aabb, BareHit, Hit, Primitives, Ray, TriangleMesh, Vec3};
 use std::path::PathBuf;
 
 /// A mesh from the repository's `tests/data`, fan-triangulated.
@@ -97,4 +97,24 @@ pub fn uniform(seed: u64) -> impl FnMut() -> f32 {
         s ^= s << 17;
         (s >> 40) as f32 / (1u64 << 24) as f32
     }
+}
+
+/// Rays from a sphere around the mesh toward random points in its box, and
+/// rays aimed exactly at vertices and edge midpoints (zero edge functions).
+#[allow(dead_code)]
+pub fn sphere_rays(m: &TriangleMesh, n: usize) -> Vec<Ray> {
+    let b = m.positions.iter().fold(Aabb::EMPTY, |a, p| a.grow(*p));
+    let (c, d) = (b.centroid(), b.diagonal());
+    let mut next = uniform(0x2545_f491_4f6c_dd1d);
+    let mut out = Vec::new();
+    for i in 0..n {
+        let dir = Vec3::new(next() - 0.5, next() - 0.5, next() - 0.5);
+        let o = c + dir.normalize_or_zero() * 0.75 * d;
+        let p = b.min + (b.max - b.min) * Vec3::new(next(), next(), next());
+        out.push(Ray::infinite(o, p - o));
+        let [a, bb, _] = m.corners((i % m.len()) as u32);
+        out.push(Ray::infinite(o, a - o));
+        out.push(Ray::infinite(o, (a + bb) * 0.5 - o));
+    }
+    out
 }
