@@ -8,12 +8,7 @@
 use raymesh_accel::*;
 
 mod common;
-use common::{load, sphere_rays};
-
-/// Hit as bits, so that `-0.0` and `0.0` differ and NaN compares.
-fn key(h: Option<Hit>) -> Option<(u32, u32, u32, u32)> {
-    h.map(|h| (h.prim, h.t.to_bits(), h.u.to_bits(), h.v.to_bits()))
-}
+use common::{bare_of as key, kernel_cases};
 
 #[test]
 fn fallbacks_agree_with_brute_force_and_with_the_kernels() {
@@ -25,17 +20,7 @@ fn fallbacks_agree_with_brute_force_and_with_the_kernels() {
         AccelKind::KdTree,
         AccelKind::Grid,
     ];
-    for name in [
-        "elephant-with-holes.off",
-        "sphere.ply",
-        "cube_quad.off",
-        "degtri_sliding.off",
-    ] {
-        let m = load(name);
-        let rays = sphere_rays(&m, 400);
-        let brute = Scene::build(m.clone(), AccelKind::Brute);
-        let want: Vec<_> = rays.iter().map(|r| key(brute.intersect(r))).collect();
-        assert!(want.iter().filter(|w| w.is_some()).count() > rays.len() / 10);
+    for (name, m, rays, want) in kernel_cases() {
         for kind in kinds {
             let s = Scene::build(Triangles::from_mesh(&m), kind);
             for on in [true, false] {

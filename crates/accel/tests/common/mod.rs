@@ -1,7 +1,9 @@
 //! Meshes, hit keys and generators shared by the integration tests.
 
 use proptest::prelude::*;
-use raymesh_accel::{Aabb, BareHit, Hit, Primitives, Ray, TriangleMesh, Vec3};
+use raymesh_accel::{
+    Aabb, AccelKind, BareHit, Hit, Primitives, Ray, Scene, Surface, TriangleMesh, Vec3,
+};
 use std::path::PathBuf;
 
 /// A mesh from the repository's `tests/data`, fan-triangulated.
@@ -117,4 +119,32 @@ pub fn sphere_rays(m: &TriangleMesh, n: usize) -> Vec<Ray> {
         out.push(Ray::infinite(o, (a + bb) * 0.5 - o));
     }
     out
+}
+
+/// A brute-force closest hit, as [`bare_of`] keys.
+pub type Want = Vec<Option<(u32, u32, u32, u32)>>;
+
+/// For the tests that compare a kernel's builds (SIMD or portable, AVX2
+/// or AVX-512): four meshes of `tests/data` (holes, a closed sphere,
+/// quads, degenerate triangles), each with its [`sphere_rays`] and brute
+/// force's closest hits for them, a tenth of the rays or more hitting.
+#[allow(dead_code)]
+pub fn kernel_cases() -> Vec<(&'static str, TriangleMesh, Vec<Ray>, Want)> {
+    let names = [
+        "elephant-with-holes.off",
+        "sphere.ply",
+        "cube_quad.off",
+        "degtri_sliding.off",
+    ];
+    names
+        .into_iter()
+        .map(|name| {
+            let m = load(name);
+            let rays = sphere_rays(&m, 400);
+            let brute = Scene::build(m.clone(), AccelKind::Brute);
+            let want: Want = rays.iter().map(|r| bare_of(brute.intersect(r))).collect();
+            assert!(want.iter().filter(|w| w.is_some()).count() > rays.len() / 10);
+            (name, m, rays, want)
+        })
+        .collect()
 }
