@@ -27,6 +27,11 @@ pub struct Ray {
 
 impl Ray {
     /// Makes a ray over `[tmin, tmax]`; `tmax` may be `f32::INFINITY`.
+    ///
+    /// Inlined where it is called (every query starts with it): as a call
+    /// across the crate boundary it returned the ray through memory for
+    /// the traversal to read back, 40 instructions a query more
+    /// (callgrind, `bvh8` on bunny00).
     #[inline]
     #[must_use]
     pub fn new(origin: Vec3, dir: Vec3, tmin: f32, tmax: f32) -> Self {
