@@ -3,28 +3,10 @@
 mod common;
 use common::*;
 use std::path::Path;
-use std::process::Command;
-
-fn run_ok(cmd: &mut Command) -> String {
-    let out = cmd.output().unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8(out.stdout).unwrap()
-}
 
 fn info(path: &Path) -> serde_json::Value {
     let out = run_ok(raymesh().args(["info", "--json"]).arg(path));
     serde_json::from_str(&out).unwrap()
-}
-
-fn fails_with(cmd: &mut Command, needle: &str) {
-    let out = cmd.output().unwrap();
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(err.contains(needle), "{needle:?} not in {err}");
 }
 
 #[test]

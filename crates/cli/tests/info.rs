@@ -3,14 +3,6 @@
 mod common;
 use common::*;
 
-use std::path::PathBuf;
-
-fn data(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../tests/data")
-        .join(name)
-}
-
 #[test]
 fn info_json_has_the_contract_keys() {
     let out = raymesh()

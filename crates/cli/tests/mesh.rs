@@ -3,14 +3,6 @@
 mod common;
 use common::*;
 
-use std::path::PathBuf;
-
-fn data(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../tests/data")
-        .join(name)
-}
-
 fn json(args: &[&str], file: &str) -> serde_json::Value {
     let out = raymesh().args(args).arg(data(file)).output().unwrap();
     assert!(

@@ -2,25 +2,8 @@
 
 mod common;
 use common::*;
-use std::process::Command;
 
-use std::path::{Path, PathBuf};
-
-fn data(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../tests/data")
-        .join(name)
-}
-
-fn run_ok(cmd: &mut Command) -> String {
-    let out = cmd.output().unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8(out.stdout).unwrap()
-}
+use std::path::Path;
 
 /// The data part of a .npy file (after the header).
 fn npy_data(path: &Path) -> Vec<u8> {
@@ -35,13 +18,7 @@ fn every_structure_writes_the_same_hits() {
     let mesh = data("elephant-with-holes.off");
     for w in ["primary", "random", "diffuse", "shadow"] {
         let rays = dir.join(format!("{w}.npy"));
-        run_ok(
-            raymesh()
-                .arg("rays")
-                .arg(&mesh)
-                .args(["--workload", w, "--size", "48", "-o"])
-                .arg(&rays),
-        );
+        write_rays(&mesh, w, 48, &rays);
         let mut reference: Option<Vec<u8>> = None;
         for accel in [
             "brute",
@@ -183,13 +160,7 @@ fn any_hit_agrees_on_what_is_hit() {
     let dir = tmpdir("anyhit");
     let mesh = data("sphere.ply");
     let rays = dir.join("r.npy");
-    run_ok(
-        raymesh()
-            .arg("rays")
-            .arg(&mesh)
-            .args(["--workload", "random", "--size", "40", "-o"])
-            .arg(&rays),
-    );
+    write_rays(&mesh, "random", 40, &rays);
     let count = |extra: &[&str]| -> u64 {
         let json = run_ok(
             raymesh()
@@ -223,13 +194,7 @@ fn any_hit_agrees_on_what_is_hit() {
     }
     // A camera's rays, which go as packets.
     let primary = dir.join("p.npy");
-    run_ok(
-        raymesh()
-            .arg("rays")
-            .arg(&mesh)
-            .args(["--workload", "primary", "--size", "24", "-o"])
-            .arg(&primary),
-    );
+    write_rays(&mesh, "primary", 24, &primary);
     let hits = |extra: &[&str]| -> Vec<u8> {
         let out = dir.join("h.npy");
         run_ok(

@@ -1,7 +1,7 @@
 //! Helpers shared by the end-to-end tests.
 #![allow(dead_code)]
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 
 /// The `raymesh` binary under test.
@@ -21,4 +21,35 @@ pub fn tmpdir(tag: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("raymesh-{tag}-{}", std::process::id()));
     std::fs::create_dir_all(&d).unwrap();
     d
+}
+
+/// Runs `cmd`, which must succeed; its standard output.
+pub fn run_ok(cmd: &mut Command) -> String {
+    let out = cmd.output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).unwrap()
+}
+
+/// Runs `cmd`, which must fail with `needle` in its standard error.
+pub fn fails_with(cmd: &mut Command, needle: &str) {
+    let out = cmd.output().unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains(needle), "{needle:?} not in {err}");
+}
+
+/// Writes BENCH.md's `workload` rays for `mesh` at image size `size` to
+/// `out` (`raymesh rays`).
+pub fn write_rays(mesh: &Path, workload: &str, size: u32, out: &Path) {
+    run_ok(
+        raymesh()
+            .arg("rays")
+            .arg(mesh)
+            .args(["--workload", workload, "--size", &size.to_string(), "-o"])
+            .arg(out),
+    );
 }
