@@ -15,7 +15,7 @@ use crate::bvh::{BoxRay, Bvh, NodePair, PairRay, WideNode};
 use crate::BlockHits;
 use raymesh_geometry::Ray;
 
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
 
 /// Whether the SIMD kernels may be used (see [`set_simd_enabled`]).
 static SIMD_ENABLED: AtomicBool = AtomicBool::new(true);
@@ -26,7 +26,55 @@ static SIMD_ENABLED: AtomicBool = AtomicBool::new(true);
 /// measuring what the kernels buy, and for testing the fallbacks on
 /// machines that have the instructions.
 pub fn set_simd_enabled(on: bool) {
-    SIMD_ENABLED.store(on, Ordering::Relaxed);
+    SIMD_ENABLED.store(on, Ordering::SeqCst);
+    LEVEL.store(UNKNOWN, Ordering::SeqCst);
+}
+
+/// What [`Avx2::detect`] finds, kept in one byte: [`UNKNOWN`] until the
+/// first query after start-up or after a switch ([`set_simd_enabled`],
+/// [`set_avx512_enabled`]), then [`NO_AVX2`], [`AVX2`] or [`AVX512`]. One
+/// load a query, where reading the two switches and the CPU's feature
+/// cache took five loads and as many branches (bunny00's random rays
+/// through `bvh8`, callgrind: 1,007 -> 999 instructions a closest hit).
+static LEVEL: AtomicU8 = AtomicU8::new(UNKNOWN);
+const UNKNOWN: u8 = 0;
+const NO_AVX2: u8 = 1;
+const AVX2: u8 = 2;
+const AVX512: u8 = 3;
+
+/// [`LEVEL`] worked out from the switches and the CPU, and stored. A
+/// switch thrown while this runs may reset [`LEVEL`] before the store
+/// here, which would then keep the old switches' level: so the switches
+/// are read again after the store (all in one order, `SeqCst`), and the
+/// level worked out again until it stands.
+#[cold]
+#[inline(never)]
+fn find_level() -> u8 {
+    let work_out = || {
+        if !(SIMD_ENABLED.load(Ordering::SeqCst) && cpu_has_avx2()) {
+            NO_AVX2
+        } else if AVX512_ENABLED.load(Ordering::SeqCst) && cpu_has_avx512vl() {
+            AVX512
+        } else {
+            AVX2
+        }
+    };
+    loop {
+        let level = work_out();
+        LEVEL.store(level, Ordering::SeqCst);
+        if work_out() == level {
+            return level;
+        }
+    }
+}
+
+/// [`LEVEL`], worked out on first use.
+#[inline(always)]
+fn level() -> u8 {
+    match LEVEL.load(Ordering::Relaxed) {
+        UNKNOWN => find_level(),
+        l => l,
+    }
 }
 
 /// Whether the SIMD kernels are enabled (a loop reads it once, before it
@@ -40,8 +88,9 @@ pub(crate) fn simd_enabled() -> bool {
 /// Whether the SIMD kernels are enabled and this CPU has AVX2.
 #[inline(always)]
 #[must_use]
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 pub(crate) fn has_avx2() -> bool {
-    SIMD_ENABLED.load(Ordering::Relaxed) && cpu_has_avx2()
+    level() >= AVX2
 }
 
 /// Whether this CPU has AVX2 (detected once, then a cached load).
@@ -92,7 +141,8 @@ static AVX512_ENABLED: AtomicBool = AtomicBool::new(true);
 /// AVX2 builds run, for measuring what the registers buy and for testing
 /// the AVX2 builds on machines with AVX-512.
 pub fn set_avx512_enabled(on: bool) {
-    AVX512_ENABLED.store(on, Ordering::Relaxed);
+    AVX512_ENABLED.store(on, Ordering::SeqCst);
+    LEVEL.store(UNKNOWN, Ordering::SeqCst);
 }
 
 /// Whether this CPU has AVX-512F and AVX-512VL (detected once, then a
@@ -761,9 +811,11 @@ impl Avx2 {
     #[inline(always)]
     #[must_use]
     pub fn detect() -> Option<Self> {
-        has_avx2().then(|| Self {
-            wide: AVX512_ENABLED.load(Ordering::Relaxed) && cpu_has_avx512vl(),
-        })
+        match level() {
+            AVX2 => Some(Self { wide: false }),
+            AVX512 => Some(Self { wide: true }),
+            _ => None,
+        }
     }
 
     /// Whether [`Self::run_wide`] may run: the CPU has AVX-512F and

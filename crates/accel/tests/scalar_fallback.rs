@@ -20,11 +20,17 @@ fn fallbacks_agree_with_brute_force_and_with_the_kernels() {
         AccelKind::KdTree,
         AccelKind::Grid,
     ];
+    // Whether the kernels run: the switch must turn them off at once, or
+    // this test would compare them with themselves.
+    let has_avx2 = Avx2::detect().is_some();
+    #[cfg(target_arch = "x86_64")]
+    assert_eq!(has_avx2, std::is_x86_feature_detected!("avx2"));
     for (name, m, rays, want) in kernel_cases() {
         for kind in kinds {
             let s = Scene::build(Triangles::from_mesh(&m), kind);
             for on in [true, false] {
                 set_simd_enabled(on);
+                assert_eq!(Avx2::detect().is_some(), on && has_avx2, "simd={on}");
                 let mut stream = vec![None; rays.len()];
                 s.intersect_stream(&rays, &mut stream);
                 let mut any = vec![None; rays.len()];
