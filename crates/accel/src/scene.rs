@@ -178,9 +178,13 @@ impl<P: Primitives> Scene<P> {
     #[must_use]
     pub fn stats(&self) -> AccelStats {
         let s = self.accel.stats();
+        // The accelerator counts leaves in blocks; primitives without a
+        // block test take one test each, which it cannot count.
+        let leaf_tests = s.leaf_tests.filter(|_| P::BLOCK_TEST);
         AccelStats {
             build_ms: self.build_ms,
             bytes: s.bytes + self.original.as_ref().map_or(0, |o| o.len() * 4),
+            leaf_tests,
             ..s
         }
     }

@@ -20,6 +20,20 @@ pub struct AccelStats {
     /// costs (MacDonald & Booth 1990): the expected work of a random ray
     /// that hits the root box, in primitive tests.
     pub sah_cost: f64,
+    /// Node tests a random ray that hits the root box is expected to make,
+    /// by the same area ratios as [`Self::sah_cost`]: one for each node it
+    /// enters (a wide node's children tested at once; a binary node's
+    /// pair of children). `None` for structures other than BVHs.
+    pub node_tests: Option<f64>,
+    /// Leaf tests such a ray is expected to make: each leaf it enters
+    /// counted in blocks of up to [`crate::BLOCK`] primitives, as
+    /// triangles are tested ([`crate::Primitives::intersect_block`]), or
+    /// one primitive at a time for primitives that have no block test.
+    /// With [`Self::node_tests`], the SAH that Embree's builder minimizes
+    /// (unit costs, leaves in blocks), for comparing trees whose leaves
+    /// are tested in blocks of different widths, where `sah_cost` counts
+    /// every primitive. `None` for structures other than BVHs.
+    pub leaf_tests: Option<f64>,
 }
 
 /// Counts what one ray costs. Traversals are generic over it, so that

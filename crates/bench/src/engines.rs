@@ -97,6 +97,24 @@ impl Runner<'_> {
     }
 }
 
+/// What a tree costs a random ray that meets its root box, by the SAH's
+/// area ratios: `sah` in raymesh's units (`AccelStats::sah_cost`: every
+/// triangle of a leaf one test), and the node and leaf tests expected
+/// (`AccelStats::node_tests`, `leaf_tests`), each leaf counted in the
+/// engine's own blocks: raymesh's of 8 triangles, Embree's of 4. Their
+/// sum is the cost Embree's builder minimizes (unit costs, leaves in
+/// blocks), and compares trees whose leaves are tested in blocks of
+/// different widths, which `sah` does not.
+#[derive(Clone, Copy, Debug)]
+pub struct TreeCost {
+    /// The SAH cost, every primitive one test.
+    pub sah: f64,
+    /// Expected node tests.
+    pub node_tests: f64,
+    /// Expected leaf tests, in the engine's blocks.
+    pub leaf_tests: f64,
+}
+
 /// A ray-tracing engine built over one mesh.
 pub trait Engine: Send + Sync {
     /// Short name for tables.
@@ -107,9 +125,9 @@ pub trait Engine: Send + Sync {
     /// Bytes its structure holds (triangle copies included, the caller's
     /// mesh apart), where the engine tells.
     fn bytes(&self) -> Option<usize>;
-    /// SAH cost of its tree in raymesh's units (`AccelStats::sah_cost`),
-    /// where it can be had.
-    fn sah_cost(&self) -> Option<f64> {
+    /// What its tree costs a random ray, where it can be had: the SAH in
+    /// raymesh's units and the expected node and leaf tests.
+    fn tree_cost(&self) -> Option<TreeCost> {
         None
     }
     /// Traces every ray for the closest hit (`any == false`) or any hit.
@@ -174,8 +192,13 @@ impl Engine for Raymesh {
         // The structure plus its triangle rows, as `raymesh raycast` counts.
         Some(self.scene.stats().bytes + self.scene.prims().bytes())
     }
-    fn sah_cost(&self) -> Option<f64> {
-        Some(self.scene.stats().sah_cost)
+    fn tree_cost(&self) -> Option<TreeCost> {
+        let s = self.scene.stats();
+        Some(TreeCost {
+            sah: s.sah_cost,
+            node_tests: s.node_tests?,
+            leaf_tests: s.leaf_tests?,
+        })
     }
     fn trace(&self, rays: &[[f32; 8]], any: bool, run: &Runner) -> (f64, Vec<Answer>) {
         // Each engine makes its rays inside the timed pass, as Embree must

@@ -116,6 +116,12 @@ struct Build {
     /// SAH cost of the engine's tree, in raymesh's units, where known.
     #[serde(skip_serializing_if = "Option::is_none")]
     sah_cost: Option<f64>,
+    /// Node tests a random ray is expected to make (see `TreeCost`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    node_tests: Option<f64>,
+    /// Leaf tests, in the engine's blocks, a random ray is expected to make.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    leaf_tests: Option<f64>,
 }
 
 /// One engine's pass over one workload.
@@ -269,7 +275,8 @@ fn interleaved(
         .iter()
         .zip(&engines)
         .zip(&build_ms)
-        .map(|((_, e), &ms)| Build {
+        .map(|((_, e), &ms)| (e, ms, e.tree_cost()))
+        .map(|(e, ms, cost)| Build {
             kind: "build",
             mesh: String::new(),
             engine: e.name(),
@@ -277,7 +284,9 @@ fn interleaved(
             quality: args.quality,
             build_ms: ms,
             bytes_per_triangle: e.bytes().map(|b| b as f64 / tris.len().max(1) as f64),
-            sah_cost: e.sah_cost(),
+            sah_cost: cost.map(|c| c.sah),
+            node_tests: cost.map(|c| c.node_tests),
+            leaf_tests: cost.map(|c| c.leaf_tests),
         })
         .collect();
     let once = Runner { repeat: 1, ..*run };
@@ -434,6 +443,7 @@ fn main() -> Result<()> {
                     engine = pool.install(build);
                     build_ms = build_ms.min(engine.build_ms());
                 }
+                let cost = engine.tree_cost();
                 builds.push(Build {
                     kind: "build",
                     mesh: mesh_name.clone(),
@@ -442,7 +452,9 @@ fn main() -> Result<()> {
                     quality: args.quality,
                     build_ms,
                     bytes_per_triangle: engine.bytes().map(|b| b as f64 / tris.len().max(1) as f64),
-                    sah_cost: engine.sah_cost(),
+                    sah_cost: cost.map(|c| c.sah),
+                    node_tests: cost.map(|c| c.node_tests),
+                    leaf_tests: cost.map(|c| c.leaf_tests),
                 });
                 let mut mine = Vec::new();
                 let mut k = 0;
@@ -516,6 +528,9 @@ fn report(builds: &[Build], traces: &[Trace], reference: &str) {
         if let Some(sah) = b.sah_cost {
             c += &format!(", SAH {sah:.1}");
         }
+        if let (Some(n), Some(l)) = (b.node_tests, b.leaf_tests) {
+            c += &format!(", {n:.2} node + {l:.2} leaf tests a ray");
+        }
         c
     });
     let quality = match builds[0].quality {
@@ -578,14 +593,26 @@ fn markdown(names: &[&str], builds: &[Build], traces: &[Trace], threads: &[usize
         });
         println!("| {mesh} | {t} | {row} |");
     }
-    println!("\n| mesh | engine | bytes/triangle | SAH cost |");
-    println!("| --- | --- | --- | --- |");
+    println!(
+        "\n| mesh | engine | bytes/triangle | SAH cost | node tests | leaf tests | node + leaf tests |"
+    );
+    println!("| --- | --- | --- | --- | --- | --- | --- |");
     for b in builds.iter().filter(|b| b.threads == threads[0]) {
         let bytes = b
             .bytes_per_triangle
             .map_or("not reported".to_string(), |x| format!("{x:.1}"));
-        let sah = b.sah_cost.map_or("-".to_string(), |x| format!("{x:.1}"));
-        println!("| {} | {} | {bytes} | {sah} |", b.mesh, b.engine);
+        let f =
+            |x: Option<f64>, digits: usize| x.map_or("-".to_string(), |x| format!("{x:.digits$}"));
+        let both = b.node_tests.zip(b.leaf_tests).map(|(n, l)| n + l);
+        println!(
+            "| {} | {} | {bytes} | {} | {} | {} | {} |",
+            b.mesh,
+            b.engine,
+            f(b.sah_cost, 1),
+            f(b.node_tests, 2),
+            f(b.leaf_tests, 2),
+            f(both, 2)
+        );
     }
     println!(
         "\n| mesh | workload | threads | query | {} | {} |",

@@ -59,6 +59,16 @@ fn every_structure_writes_the_same_hits() {
                 assert!(v.get(key).is_some(), "{accel}: no '{key}' in {json}");
             }
             assert_eq!(v["triangles"], 4463);
+            // The expected tests a ray, for BVHs only: at least the root's
+            // one node test, and some leaf tests.
+            let bvh = accel.starts_with("bvh");
+            for key in ["node_tests", "leaf_tests"] {
+                assert_eq!(v.get(key).is_some(), bvh, "{accel}: '{key}' in {json}");
+            }
+            if bvh {
+                assert!(v["node_tests"].as_f64().unwrap() >= 1.0, "{accel}: {json}");
+                assert!(v["leaf_tests"].as_f64().unwrap() > 0.0, "{accel}: {json}");
+            }
             let hits = npy_data(&out);
             match &reference {
                 None => {

@@ -16,6 +16,7 @@ pub(crate) use wide::slab_scalar;
 pub use wide::{BoxRay, Bvh4, Bvh8, Node4, Node8, WideBvh, WideNode};
 
 use crate::packet::{self, Packet8, LANES};
+use crate::prims::BLOCK;
 use crate::{simd, test_each, AccelStats, Leaf, RayCounter};
 use raymesh_geometry::{
     cull_bound, exit_reciprocal, max_nan_second as max_ns, min_nan_second as min_ns, Aabb, Ray,
@@ -216,28 +217,37 @@ impl Bvh {
         };
         let leaves = used().filter(|n| n.is_leaf()).count();
         let root_area = self.bounds().half_area() as f64;
-        let sah_cost = if nodes.is_empty() {
-            0.0
-        } else if root_area <= 0.0 {
-            used().filter(|n| n.is_leaf()).map(|n| n.count as f64).sum()
-        } else {
-            used()
-                .map(|n| {
-                    let a = n.bounds().half_area() as f64 / root_area;
-                    if n.is_leaf() {
-                        a * n.count as f64
-                    } else {
-                        a
-                    }
-                })
-                .sum()
+        let rel = |n: &Node| {
+            if root_area > 0.0 {
+                n.bounds().half_area() as f64 / root_area
+            } else {
+                1.0
+            }
         };
+        // Per node: (SAH term, node tests, leaf tests). An inner node
+        // entered is one test of its pair of children.
+        let (sah_cost, node_tests, leaf_tests) = used()
+            .map(|n| {
+                let a = rel(n);
+                if n.is_leaf() {
+                    let blocks = n.count.div_ceil(BLOCK as u32);
+                    (a * n.count as f64, 0.0, a * blocks as f64)
+                } else if root_area > 0.0 {
+                    (a, a, 0.0)
+                } else {
+                    // Flat: as `sah_cost` always counted it, leaves only.
+                    (0.0, a, 0.0)
+                }
+            })
+            .fold((0.0, 0.0, 0.0), |s, t| (s.0 + t.0, s.1 + t.1, s.2 + t.2));
         AccelStats {
             nodes: nodes.len().saturating_sub(1),
             leaves,
             depth: self.depth(),
             bytes: self.pairs.len() * std::mem::size_of::<NodePair>() + self.prim_ids.len() * 4,
             sah_cost,
+            node_tests: Some(node_tests),
+            leaf_tests: Some(leaf_tests),
             ..AccelStats::default()
         }
     }

@@ -94,6 +94,12 @@ struct Report {
     leaves: usize,
     depth: usize,
     sah_cost: f64,
+    /// Expected node and leaf tests of a random ray that meets the root
+    /// box (`AccelStats::node_tests`, `leaf_tests`): BVHs only.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    node_tests: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    leaf_tests: Option<f64>,
     any_hit: bool,
     packets: bool,
     stream: bool,
@@ -280,6 +286,8 @@ pub fn run(args: &Args) -> Result<()> {
         leaves: stats.leaves,
         depth: stats.depth,
         sah_cost: stats.sah_cost,
+        node_tests: stats.node_tests,
+        leaf_tests: stats.leaf_tests,
         any_hit: args.any_hit,
         packets: args.packets,
         stream: args.stream,
@@ -320,6 +328,11 @@ pub fn run(args: &Args) -> Result<()> {
             report.bytes_per_triangle, report.nodes, report.leaves, report.depth
         );
         println!("SAH cost           {:.2}", report.sah_cost);
+        if let (Some(n), Some(l)) = (report.node_tests, report.leaf_tests) {
+            println!(
+                "expected tests     {n:.2} node tests, {l:.2} leaf tests (a random ray meeting the root box)"
+            );
+        }
         if let (Some(n), Some(p)) = (report.nodes_per_ray, report.prims_per_ray) {
             println!("per ray            {n:.1} nodes visited, {p:.1} triangles tested");
         }
