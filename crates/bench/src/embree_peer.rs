@@ -11,10 +11,10 @@ use embree::sys::{
     rtcIntersect1M, rtcIntersect8, rtcNewBVH, rtcNewDevice, rtcNewGeometry, rtcNewScene,
     rtcOccluded1, rtcOccluded1M, rtcOccluded8, rtcReleaseBVH, rtcReleaseDevice, rtcReleaseGeometry,
     rtcReleaseScene, rtcSetDeviceMemoryMonitorFunction, rtcSetGeometryBuildQuality,
-    rtcSetSceneBuildQuality, rtcSetSharedGeometryBuffer, rtcThreadLocalAlloc, RTCBounds,
-    RTCBufferType, RTCBuildArguments, RTCBuildFlags, RTCBuildPrimitive, RTCBuildQuality, RTCDevice,
-    RTCFormat, RTCGeometryType, RTCHit, RTCHit8, RTCRay, RTCRay8, RTCRayHit, RTCRayHit8, RTCScene,
-    RTCThreadLocalAllocator,
+    rtcSetSceneBuildQuality, rtcSetSceneFlags, rtcSetSharedGeometryBuffer, rtcThreadLocalAlloc,
+    RTCBounds, RTCBufferType, RTCBuildArguments, RTCBuildFlags, RTCBuildPrimitive, RTCBuildQuality,
+    RTCDevice, RTCFormat, RTCGeometryType, RTCHit, RTCHit8, RTCRay, RTCRay8, RTCRayHit, RTCRayHit8,
+    RTCScene, RTCSceneFlags, RTCThreadLocalAllocator,
 };
 use raymesh_geometry::{Aabb, Vec3};
 use std::ffi::c_void;
@@ -51,8 +51,16 @@ pub struct EmbreeScene {
 
 impl EmbreeScene {
     /// Builds Embree's default BVH (build quality medium), or its
-    /// spatial-split BVH (quality high) when `high`, with `threads` threads.
-    pub fn new(positions: &[Vec3], triangles: &[[u32; 3]], threads: usize, high: bool) -> Self {
+    /// spatial-split BVH (quality high) when `high`, with `threads` threads;
+    /// `robust` sets `RTC_SCENE_FLAG_ROBUST` (robust traversal, watertight
+    /// triangle test) on the scene.
+    pub fn new(
+        positions: &[Vec3],
+        triangles: &[[u32; 3]],
+        threads: usize,
+        high: bool,
+        robust: bool,
+    ) -> Self {
         let quality = if high {
             RTCBuildQuality::HIGH
         } else {
@@ -99,6 +107,9 @@ impl EmbreeScene {
             rtcCommitGeometry(geom);
             let scene = rtcNewScene(device);
             rtcSetSceneBuildQuality(scene, quality);
+            if robust {
+                rtcSetSceneFlags(scene, RTCSceneFlags::ROBUST);
+            }
             rtcAttachGeometry(scene, geom);
             rtcReleaseGeometry(geom);
             rtcCommitScene(scene);

@@ -82,6 +82,11 @@ struct Args {
     /// the Rust peers have no such builder and build as they always do.
     #[arg(long, value_enum, default_value_t = Quality::Medium)]
     quality: Quality,
+    /// Builds Embree's scene with `RTC_SCENE_FLAG_ROBUST`: its robust
+    /// traversal and watertight triangle test, the guarantees raymesh
+    /// always gives, instead of its default fast arithmetic.
+    #[arg(long)]
+    embree_robust: bool,
     /// Builds every engine first and keeps them all, then takes turns:
     /// each of the R repeats of a build, and of each workload and query,
     /// runs every engine once before the next repeat (the best of each
@@ -218,17 +223,21 @@ fn engine_names(peers: &str) -> Result<Vec<&'static str>> {
 
 fn build_engine(
     name: &str,
-    accel: AccelKind,
-    quality: Quality,
+    args: &Args,
     positions: &[raymesh_geometry::Vec3],
     triangles: &[[u32; 3]],
     threads: usize,
 ) -> Box<dyn Engine> {
+    let (accel, quality) = (args.accel, args.quality);
     #[cfg(feature = "embree")]
     if name == "embree" {
         let high = quality == Quality::High;
         return Box::new(embree_peer::EmbreeScene::new(
-            positions, triangles, threads, high,
+            positions,
+            triangles,
+            threads,
+            high,
+            args.embree_robust,
         ));
     }
     let _ = threads;
@@ -257,7 +266,7 @@ fn interleaved(
 ) -> (Vec<Build>, Vec<Trace>, Vec<(&'static str, Vec<f64>)>) {
     let build = |name: &str| {
         run.pool
-            .install(|| build_engine(name, args.accel, args.quality, &mesh.positions, tris, t))
+            .install(|| build_engine(name, args, &mesh.positions, tris, t))
     };
     let mut built: Vec<Option<Box<dyn Engine>>> = names.iter().map(|_| None).collect();
     let mut build_ms = vec![f64::INFINITY; names.len()];
@@ -393,6 +402,9 @@ fn main() -> Result<()> {
             }
         };
         if !args.json {
+            if args.embree_robust && names.contains(&"embree") {
+                println!("Embree in robust mode (RTC_SCENE_FLAG_ROBUST)");
+            }
             println!(
                 "{}: {} triangles; {}",
                 path.display(),
@@ -434,8 +446,7 @@ fn main() -> Result<()> {
             for &name in names.iter().filter(|_| !args.interleave) {
                 // Best of R builds (the first of a process pays for its
                 // allocator and thread start-up); the last one is traced.
-                let build =
-                    || build_engine(name, args.accel, args.quality, &mesh.positions, &tris, t);
+                let build = || build_engine(name, &args, &mesh.positions, &tris, t);
                 let mut engine = pool.install(build);
                 let mut build_ms = engine.build_ms();
                 for _ in 1..args.repeat {
