@@ -1470,6 +1470,14 @@ mod tests {
             let (t0, t1) = b.slab(p, d.recip(), oct, f32::NEG_INFINITY, f32::INFINITY);
             t0 <= t1
         };
+        // The binary tree's nodes but the root's unused sibling.
+        let bin_nodes: Vec<_> = bin
+            .nodes()
+            .into_iter()
+            .enumerate()
+            .filter(|(i, _)| *i != 1)
+            .map(|(_, n)| n)
+            .collect();
         let (mut lines, mut bin_counts, mut wide_counts) = (0usize, (0.0, 0.0), (0.0, 0.0));
         let blocks = |count: u32| f64::from(count.div_ceil(BLOCK as u32));
         while lines < 40_000 {
@@ -1489,13 +1497,7 @@ mod tests {
                 continue;
             }
             lines += 1;
-            for n in bin
-                .nodes()
-                .iter()
-                .enumerate()
-                .filter(|(i, _)| *i != 1)
-                .map(|(_, n)| n)
-            {
+            for n in &bin_nodes {
                 if meets(n.bounds(), p, d) {
                     if n.is_leaf() {
                         bin_counts.1 += blocks(n.count);
