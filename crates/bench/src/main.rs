@@ -129,6 +129,34 @@ struct Build {
     leaf_tests: Option<f64>,
 }
 
+impl Build {
+    /// `engine`'s build on `mesh` (of `ntris` triangles) at `threads`
+    /// threads, best of its builds `build_ms`, with the figures the
+    /// engine tells of its structure (bytes, and its tree's costs).
+    fn of(
+        engine: &dyn Engine,
+        mesh: String,
+        threads: usize,
+        quality: Quality,
+        build_ms: f64,
+        ntris: usize,
+    ) -> Self {
+        let cost = engine.tree_cost();
+        Self {
+            kind: "build",
+            mesh,
+            engine: engine.name(),
+            threads,
+            quality,
+            build_ms,
+            bytes_per_triangle: engine.bytes().map(|b| b as f64 / ntris.max(1) as f64),
+            sah_cost: cost.map(|c| c.sah),
+            node_tests: cost.map(|c| c.node_tests),
+            leaf_tests: cost.map(|c| c.leaf_tests),
+        }
+    }
+}
+
 /// One engine's pass over one workload.
 #[derive(Serialize)]
 struct Trace {
@@ -284,19 +312,7 @@ fn interleaved(
         .iter()
         .zip(&engines)
         .zip(&build_ms)
-        .map(|((_, e), &ms)| (e, ms, e.tree_cost()))
-        .map(|(e, ms, cost)| Build {
-            kind: "build",
-            mesh: String::new(),
-            engine: e.name(),
-            threads: t,
-            quality: args.quality,
-            build_ms: ms,
-            bytes_per_triangle: e.bytes().map(|b| b as f64 / tris.len().max(1) as f64),
-            sah_cost: cost.map(|c| c.sah),
-            node_tests: cost.map(|c| c.node_tests),
-            leaf_tests: cost.map(|c| c.leaf_tests),
-        })
+        .map(|((_, e), &ms)| Build::of(e.as_ref(), String::new(), t, args.quality, ms, tris.len()))
         .collect();
     let once = Runner { repeat: 1, ..*run };
     // Per engine, per (workload, query): Mrays/s and agreement.
@@ -454,19 +470,14 @@ fn main() -> Result<()> {
                     engine = pool.install(build);
                     build_ms = build_ms.min(engine.build_ms());
                 }
-                let cost = engine.tree_cost();
-                builds.push(Build {
-                    kind: "build",
-                    mesh: mesh_name.clone(),
-                    engine: engine.name(),
-                    threads: t,
-                    quality: args.quality,
+                builds.push(Build::of(
+                    engine.as_ref(),
+                    mesh_name.clone(),
+                    t,
+                    args.quality,
                     build_ms,
-                    bytes_per_triangle: engine.bytes().map(|b| b as f64 / tris.len().max(1) as f64),
-                    sah_cost: cost.map(|c| c.sah),
-                    node_tests: cost.map(|c| c.node_tests),
-                    leaf_tests: cost.map(|c| c.leaf_tests),
-                });
+                    tris.len(),
+                ));
                 let mut mine = Vec::new();
                 let mut k = 0;
                 for (workload, rays) in &workloads {
