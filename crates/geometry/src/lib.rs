@@ -18,7 +18,7 @@ pub use aabb::{cull_bound, Aabb};
 pub use float::{
     exit_reciprocal, gamma, max_nan_second, min_nan_second, next_down, next_up, ROBUST_EXIT,
 };
-pub use glam::{BVec4A, Mat3, Mat4, Quat, Vec2, Vec3, Vec3A, Vec4};
+pub use glam::{BVec4A, Mat3, Mat3A, Mat4, Quat, Vec2, Vec3, Vec3A, Vec4};
 pub use octahedral::{decode_unit, encode_unit, ZERO_UNIT};
 pub use ray::Ray;
 pub use sphere::{intersect_sphere, Sphere, SphereHit};

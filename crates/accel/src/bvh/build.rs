@@ -8,7 +8,7 @@ pub use spatial::Clip;
 
 use super::{Bvh, Node, NodePair};
 use crate::BuildConfig;
-use raymesh_geometry::{Aabb, Vec3, Vec3A, Vec4};
+use raymesh_geometry::{Aabb, Mat3A, Vec3, Vec3A, Vec4};
 use rayon::prelude::*;
 
 /// Depth past which every builder splits by count (halving the node), so
@@ -283,6 +283,17 @@ impl Bin {
     }
 }
 
+/// Half the surface areas of three bins' boxes, one a lane: each
+/// [`Bin::half_area`], bit for bit (the same products and sums in the same
+/// order), for the three boxes at once.
+#[inline(always)]
+fn half_areas(bins: &[Bin; 3]) -> Vec3A {
+    let e = bins.map(|b| max_keep(b.max - b.min, Vec3A::ZERO));
+    let t = Mat3A::from_cols(e[0], e[1], e[2]).transpose();
+    let (x, y, z) = (t.x_axis, t.y_axis, t.z_axis);
+    x * y + y * z + z * x
+}
+
 /// Scratch bins of the binned builder: [`MAX_BINS`] per axis, the three
 /// axes' bins, then a second set of three (see [`Ctx::bin`]).
 type Bins = Vec<Bin>;
@@ -294,8 +305,6 @@ struct Binning {
     nb: usize,
     min: Vec3,
     scale: Vec3,
-    /// Extent of the centroid box.
-    ext: Vec3,
 }
 
 /// The cheapest object split [`Ctx::best_object`] found: its SAH cost
@@ -743,7 +752,6 @@ impl Ctx<'_> {
             nb,
             min: cb.min,
             scale,
-            ext,
         }
     }
 
@@ -762,6 +770,18 @@ impl Ctx<'_> {
     }
 
     /// [`Self::best_object`], a side of `c` primitives weighing `weight(c)`.
+    ///
+    /// The three axes are swept together, one SIMD lane each (as Embree's
+    /// binned builder does): at each bin boundary the boxes of the three
+    /// axes' sides are transposed so that one multiply-add chain gives
+    /// their three half areas. Per axis the same unions, areas and costs,
+    /// bit for bit, as sweeping each axis on its own, and the same winner:
+    /// each axis keeps its cheapest boundary (the first of equal ones),
+    /// then the cheapest axis wins (the first of equal ones), which is the
+    /// first cheapest of the axis-by-axis sweep. Only boundaries with
+    /// primitives on both sides count (those between an axis's first and
+    /// last non-empty bins); an axis whose centroids have no extent bins
+    /// them all into its first bin, so it has none.
     #[inline(always)]
     fn best_object_by(
         bins: &Bins,
@@ -769,52 +789,73 @@ impl Ctx<'_> {
         n: usize,
         weight: impl Fn(u32) -> f32,
     ) -> Option<ObjectSplit> {
+        // Most nodes are small and have few bins: their right sides' areas
+        // fit a short array, which is quicker to set up.
+        if binning.nb <= SMALL_BINS {
+            Self::best_object_in::<SMALL_BINS>(bins, binning, n, weight)
+        } else {
+            Self::best_object_in::<MAX_BINS>(bins, binning, n, weight)
+        }
+    }
+
+    /// [`Self::best_object_by`] for at most `CAP` bins per axis.
+    #[inline(always)]
+    fn best_object_in<const CAP: usize>(
+        bins: &Bins,
+        binning: &Binning,
+        n: usize,
+        weight: impl Fn(u32) -> f32,
+    ) -> Option<ObjectSplit> {
         let nb = binning.nb;
-        // Costs are finite or NaN, and a NaN never wins.
-        let mut best: Option<ObjectSplit> = None;
-        let mut best_cost = f32::INFINITY;
-        let mut right_area = [0.0f32; MAX_BINS];
-        for axis in 0..3 {
-            if !(binning.ext[axis] > 0.0) {
-                continue;
+        debug_assert!(nb <= CAP);
+        let axis_bins: [&[Bin]; 3] = std::array::from_fn(|a| &bins[a * MAX_BINS..][..nb]);
+        let n = n as u32;
+        // Right sides: the bins from `b` on, for each boundary `b`.
+        let mut right_area = [Vec3A::ZERO; CAP];
+        let mut acc = [Bin::EMPTY; 3];
+        for b in (1..nb).rev() {
+            for (acc, bins) in acc.iter_mut().zip(&axis_bins) {
+                *acc = acc.merge(bins[b]);
             }
-            let bins = &bins[axis * MAX_BINS..][..nb];
-            // The boundaries with primitives on both sides: past the first
-            // bin that holds any, up to the last (the empty bins around
-            // them add nothing to either side). Slices of just those, so
-            // that the sweeps carry no checks of their own.
-            let nonempty = |b: &Bin| b.count > 0;
-            let (Some(first), Some(last)) = (
-                bins.iter().position(nonempty),
-                bins.iter().rposition(nonempty),
-            ) else {
-                continue;
-            };
-            let right = &bins[first + 1..=last];
-            let right_area = &mut right_area[first + 1..=last];
-            let mut acc = Bin::EMPTY;
-            for (area, bin) in right_area.iter_mut().zip(right).rev() {
-                acc = acc.merge(*bin);
-                *area = acc.half_area();
+            right_area[b] = half_areas(&acc);
+        }
+        let mut left = [Bin::EMPTY; 3];
+        let mut best_cost = Vec3A::INFINITY;
+        let mut best = [(0usize, 0u32); 3];
+        for (b, &right_area) in (1..nb).zip(&right_area[1..nb]) {
+            for (left, bins) in left.iter_mut().zip(&axis_bins) {
+                *left = left.merge(bins[b - 1]);
             }
-            let mut left = Bin::EMPTY;
-            let lefts = bins[first..last].iter().zip(right_area.iter());
-            for (b, (bin, &right_area)) in (first + 1..).zip(lefts) {
-                left = left.merge(*bin);
-                let (lcount, rcount) = (left.count, n as u32 - left.count);
-                let cost = left.half_area() * weight(lcount) + right_area * weight(rcount);
-                if cost < best_cost {
-                    best_cost = cost;
-                    best = Some(ObjectSplit {
-                        cost,
-                        axis,
-                        boundary: b,
-                        left: lcount,
-                    });
+            let counts = left.map(|l| l.count);
+            let weights = |c: [u32; 3]| Vec3A::new(weight(c[0]), weight(c[1]), weight(c[2]));
+            let (lw, rw) = (weights(counts), weights(counts.map(|c| n - c)));
+            let cost = half_areas(&left) * lw + right_area * rw;
+            // A side weighs more than nothing exactly when it holds
+            // primitives.
+            let both_sides = lw.cmpgt(Vec3A::ZERO) & rw.cmpgt(Vec3A::ZERO);
+            let better = cost.cmplt(best_cost) & both_sides;
+            best_cost = Vec3A::select(better, cost, best_cost);
+            let mask = better.bitmask();
+            for (a, best) in best.iter_mut().enumerate() {
+                if mask >> a & 1 != 0 {
+                    *best = (b, counts[a]);
                 }
             }
         }
-        best
+        // Costs are finite or NaN, and a NaN never wins.
+        let mut winner: Option<ObjectSplit> = None;
+        for (axis, &(boundary, left)) in best.iter().enumerate() {
+            let cost = best_cost[axis];
+            if cost < winner.map_or(f32::INFINITY, |w| w.cost) {
+                winner = Some(ObjectSplit {
+                    cost,
+                    axis,
+                    boundary,
+                    left,
+                });
+            }
+        }
+        winner
     }
 
     /// Moves the primitives of `ids` whose centroid bins below `boundary`
@@ -1079,6 +1120,9 @@ fn add_to(axes: &mut [&mut [Bin; MAX_BINS]; 3], k: u32, r: &PrimRef) {
     axes[1][(k >> 8) & MASK].add(lo, hi);
     axes[2][(k >> 16) & MASK].add(lo, hi);
 }
+
+/// Bins per axis up to which [`Ctx::best_object_by`] sweeps in short arrays.
+const SMALL_BINS: usize = 8;
 
 /// Most bins per axis of the binned builder (a power of two: see `bin`).
 const MAX_BINS: usize = 64;
@@ -1371,6 +1415,120 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// The cheapest bin boundary as the builder found it before it swept
+    /// the three axes together: each axis on its own, skipping axes whose
+    /// centroids have no extent, over the boundaries between its first and
+    /// last non-empty bins, the first cheapest winning.
+    fn best_object_axis_by_axis(
+        ctx: &Ctx<'_>,
+        bins: &Bins,
+        nb: usize,
+        ext: Vec3,
+        n: usize,
+    ) -> Option<(u32, usize, usize, u32)> {
+        let mut best: Option<(u32, usize, usize, u32)> = None;
+        let mut best_cost = f32::INFINITY;
+        for axis in 0..3 {
+            if !(ext[axis] > 0.0) {
+                continue;
+            }
+            let bins = &bins[axis * MAX_BINS..][..nb];
+            let nonempty = |b: &Bin| b.count > 0;
+            let (Some(first), Some(last)) = (
+                bins.iter().position(nonempty),
+                bins.iter().rposition(nonempty),
+            ) else {
+                continue;
+            };
+            for b in first + 1..=last {
+                let left = bins[..b].iter().fold(Bin::EMPTY, |a, x| a.merge(*x));
+                // The right side merged from the last bin down, as the
+                // sweep accumulates it.
+                let right = bins[b..].iter().rev().fold(Bin::EMPTY, |a, x| a.merge(*x));
+                let (lc, rc) = (left.count as usize, n - left.count as usize);
+                let cost = left.half_area() * ctx.blocks(lc) + right.half_area() * ctx.blocks(rc);
+                if cost < best_cost {
+                    best_cost = cost;
+                    best = Some((cost.to_bits(), axis, b, left.count));
+                }
+            }
+        }
+        best
+    }
+
+    /// Sweeping the three axes together (one SIMD lane each) finds the
+    /// split the axis-by-axis sweep finds, cost bit for bit, on nodes of
+    /// every size, with primitives weighed one by one and in blocks, where
+    /// centroids coincide on an axis or on all three, and where boxes have
+    /// NaN or infinite corners.
+    #[test]
+    fn axes_swept_together_choose_as_each_alone() {
+        let boxes = crate::test_util::clustered_boxes(700);
+        // Centroids that coincide on y (a flat strip), and on every axis.
+        let flat: Vec<Aabb> = boxes
+            .iter()
+            .map(|b| {
+                Aabb::new(
+                    Vec3::new(b.min.x, 1.0, b.min.z),
+                    Vec3::new(b.max.x, 3.0, b.max.z),
+                )
+            })
+            .collect();
+        let same = vec![Aabb::new(Vec3::ZERO, Vec3::ONE); 40];
+        // Corners that are NaN (skipped by the unions) or infinite (an
+        // axis with an infinite extent bins everything into its first
+        // bin): the first 20 boxes are clean, so small nodes still split.
+        let mut odd = boxes.clone();
+        for (k, x) in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY]
+            .iter()
+            .enumerate()
+        {
+            odd[7 * k + 23].min[k] = *x;
+            odd[11 * k + 25].max[(k + 1) % 3] = *x;
+        }
+        let mut checked = 0;
+        for (set, boxes) in [&boxes, &flat, &same, &odd].into_iter().enumerate() {
+            let refs: Vec<PrimRef> = boxes
+                .iter()
+                .enumerate()
+                .map(|(i, b)| PrimRef::new(*b, i as u32))
+                .collect();
+            for block in [None, Some(8), Some(3)] {
+                for nbins in [32, 8, 2] {
+                    let config = BuildConfig {
+                        leaf_block: block,
+                        bins: nbins,
+                        ..BuildConfig::default()
+                    };
+                    let ctx = Ctx::new(&config, BvhBuilder::BinnedSah, PAR_SUBTREE);
+                    for n in [2, 3, 5, 9, 17, 40, 100, 333, 700] {
+                        let ids = &refs[(set * 13) % 7..][..n.min(refs.len() - (set * 13) % 7)];
+                        let (_, cb) = ctx.bounds_pair(ids);
+                        let mut bins = new_bins();
+                        let binning = ctx.bin_all(&mut bins, ids, cb);
+                        let got = ctx
+                            .best_object(&bins, &binning, ids.len())
+                            .map(|s| (s.cost.to_bits(), s.axis, s.boundary, s.left));
+                        let want = best_object_axis_by_axis(
+                            &ctx,
+                            &bins,
+                            binning.nb,
+                            cb.extent(),
+                            ids.len(),
+                        );
+                        assert_eq!(
+                            got, want,
+                            "set {set}, block {block:?}, {nbins} bins, {n} primitives"
+                        );
+                        checked += usize::from(want.is_some());
+                    }
+                }
+            }
+        }
+        // The sets are not all without splits.
+        assert!(checked > 100, "{checked} splits compared");
     }
 
     /// A leaf's cost in blocks is the ceiling of count / block, whether
