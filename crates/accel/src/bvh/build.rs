@@ -664,6 +664,38 @@ impl Ctx<'_> {
         n <= self.max_leaf && self.blocks(n) <= self.config.traversal_cost
     }
 
+    /// Whether no split of the `ids` of a node with box `bounds` can cost
+    /// less than their leaf, so that [`Self::decide`] would make a leaf
+    /// whatever the bins: checked before binning them, which most nodes of
+    /// a few primitives end up as leaves after. A side's box holds each of
+    /// its primitives' boxes, so its area times its count is at least the
+    /// sum of their areas, and a side's weight in blocks at least its count
+    /// over the block: any split costs at least the traversal step plus
+    /// the sum of all the primitives' areas over the block, relative to
+    /// the node's area. Only where that bound passes the leaf's cost by a
+    /// margin far above the rounding of either sum (1e-4, relative), so
+    /// the trees are the ones binning every node makes.
+    #[inline(always)]
+    fn leaf_certain(&self, ids: &[PrimRef], bounds: Aabb) -> bool {
+        if ids.len() > self.max_leaf {
+            return false;
+        }
+        let area = bounds.half_area();
+        let room = self.blocks(ids.len()) - self.config.traversal_cost;
+        if !(area.is_finite() && area > 0.0 && room > 0.0) {
+            return false;
+        }
+        let sum: f32 = ids
+            .iter()
+            .map(|r| {
+                let (lo, hi) = r.corners();
+                let e = max_keep(hi - lo, Vec3A::ZERO);
+                e.x * e.y + e.y * e.z + e.z * e.x
+            })
+            .sum();
+        sum / self.block as f32 >= room * area * (1.0 + 1e-4)
+    }
+
     /// Leaf or split, given the best split's SAH cost (relative to the node's area).
     fn decide(
         &self,
@@ -692,6 +724,20 @@ impl Ctx<'_> {
     /// Binned SAH: one pass bins the centroids on all three axes at once,
     /// then the cheapest bin boundary wins.
     fn split_binned(
+        &self,
+        bins: &mut Bins,
+        ids: &mut [PrimRef],
+        bounds: Aabb,
+        cb: Aabb,
+    ) -> Option<usize> {
+        if self.leaf_certain(ids, bounds) {
+            return None;
+        }
+        self.split_binned_all(bins, ids, bounds, cb)
+    }
+
+    /// [`Self::split_binned`] without the early leaf: bins every node.
+    fn split_binned_all(
         &self,
         bins: &mut Bins,
         ids: &mut [PrimRef],
@@ -1529,6 +1575,62 @@ mod tests {
         }
         // The sets are not all without splits.
         assert!(checked > 100, "{checked} splits compared");
+    }
+
+    /// Where the binned builder makes a leaf without binning (its bound on
+    /// any split's cost passes the leaf's), binning finds no split that
+    /// pays either: the early leaf changes no tree. Nodes of 2 to 16
+    /// boxes, from spread out to piled up, weighed one by one and in
+    /// blocks of 2 and 8 (where leaves of up to a block win anyway), at
+    /// several traversal costs.
+    #[test]
+    fn early_leaves_are_the_leaves_binning_makes() {
+        let mut next = crate::test_util::xorshift(0x1b87_3593);
+        let (mut early, mut split) = (0, 0);
+        for &(block, traversal_cost) in &[
+            (None, 3.0),
+            (None, 1.0),
+            (None, 5.5),
+            (Some(2), 2.0),
+            (Some(8), 1.0),
+        ] {
+            let config = BuildConfig {
+                leaf_block: block,
+                traversal_cost,
+                ..BuildConfig::default()
+            };
+            let ctx = Ctx::new(&config, BvhBuilder::BinnedSah, PAR_SUBTREE);
+            for round in 0..3000 {
+                let n = 2 + round % 15;
+                // Boxes of size up to `size` spread over `spread`: piled
+                // up where the spread is small against the size.
+                let (spread, size) = (next() * next() * 3.0, 0.05 + next() * 2.0);
+                let mut refs: Vec<PrimRef> = (0..n as u32)
+                    .map(|i| {
+                        let p = Vec3::new(next(), next(), next()) * spread;
+                        let e = Vec3::new(next(), next(), next()) * size;
+                        PrimRef::new(Aabb::new(p, p + e), i)
+                    })
+                    .collect();
+                let (bounds, cb) = ctx.bounds_pair(&refs);
+                let mut bins = new_bins();
+                let all = ctx.split_binned_all(&mut bins, &mut refs, bounds, cb);
+                if ctx.leaf_certain(&refs, bounds) {
+                    assert_eq!(
+                        all, None,
+                        "{n} boxes over {spread} of up to {size}: binning splits"
+                    );
+                    early += 1;
+                } else {
+                    split += usize::from(all.is_some());
+                }
+            }
+        }
+        // Both kinds of node were met.
+        assert!(
+            early > 300 && split > 300,
+            "{early} early leaves, {split} splits"
+        );
     }
 
     /// A leaf's cost in blocks is the ceiling of count / block, whether
