@@ -944,6 +944,25 @@ impl Ctx<'_> {
     /// the first set. Unions and counts are exact, so the bins are what
     /// one set gives.
     fn bin(&self, ids: &[PrimRef], min: Vec3, scale: Vec3, nb: usize, bins: &mut Bins) {
+        // The kernels' switch read once, and the loop compiled for each
+        // setting: tested per primitive, it cost three instructions of the
+        // fifty-odd that bin one.
+        if crate::simd::simd_enabled() {
+            Self::bin_with::<true>(ids, min, scale, nb, bins);
+        } else {
+            Self::bin_with::<false>(ids, min, scale, nb, bins);
+        }
+    }
+
+    /// [`Self::bin`], converting bins with SSE2 where `SIMD`.
+    #[inline(always)]
+    fn bin_with<const SIMD: bool>(
+        ids: &[PrimRef],
+        min: Vec3,
+        scale: Vec3,
+        nb: usize,
+        bins: &mut Bins,
+    ) {
         let paired = ids.len() >= BIN_RUN;
         for axis in 0..if paired { 6 } else { 3 } {
             bins[axis * MAX_BINS..axis * MAX_BINS + nb].fill(Bin::EMPTY);
@@ -951,16 +970,20 @@ impl Ctx<'_> {
         let (first, second) = bins.split_at_mut(3 * MAX_BINS);
         let mut a = axes(first);
         let mut b = axes(second);
-        let simd = crate::simd::simd_enabled();
         let bin_of = |r: &PrimRef| {
             let (lo, hi) = r.corners();
-            bin3((lo + hi) * 0.5, min, scale, nb, simd)
+            bin3((lo + hi) * 0.5, min, scale, nb, SIMD)
         };
         // Whole runs as arrays, so that the loops carry no checks.
         let mut runs = ids.chunks_exact(BIN_RUN);
         for run in &mut runs {
             let run: &[PrimRef; BIN_RUN] = run.try_into().expect("a whole run");
-            let k: [u32; BIN_RUN] = std::array::from_fn(|i| bin_of(&run[i]));
+            // Filled in place: `array::from_fn` built the bins in a second
+            // array and copied them over.
+            let mut k = [0u32; BIN_RUN];
+            for (k, r) in k.iter_mut().zip(run) {
+                *k = bin_of(r);
+            }
             for i in (0..BIN_RUN).step_by(2) {
                 add_to(&mut a, k[i], &run[i]);
                 add_to(&mut b, k[i + 1], &run[i + 1]);
