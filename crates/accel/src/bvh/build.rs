@@ -690,9 +690,8 @@ impl Ctx<'_> {
         let sum: f32 = ids
             .iter()
             .map(|r| {
-                let (lo, hi) = r.corners();
-                let e = max_keep(hi - lo, Vec3A::ZERO);
-                e.x * e.y + e.y * e.z + e.z * e.x
+                let (min, max) = r.corners();
+                Bin { min, max, count: 1 }.half_area()
             })
             .sum();
         sum / self.block as f32 >= room * area * (1.0 + 1e-4)
