@@ -937,6 +937,31 @@ struct Plan<'a, const W: usize> {
     choice: Vec<AtomicU64>,
 }
 
+/// What [`Plan::cost`] gives a binary node's parent of its subtree.
+#[derive(Clone, Copy, Debug)]
+struct Planned<const W: usize> {
+    /// The least cost of the subtree filling at most `s` slots of its
+    /// parent, for each `s` in `1..=W` (index `s - 1`); it never grows
+    /// with `s`.
+    cost: [f32; W],
+    /// The fewest slots past which more never lower the cost (a pair of
+    /// binary leaves has one each), `W` where the costs are NaN.
+    useful: usize,
+    /// The subtree's primitives as one wide leaf's range, when they can
+    /// be one (as [`leaf_range`]).
+    range: Option<(u32, u32)>,
+    /// For each `s`, the wide nodes the collapse makes of the subtree so
+    /// spread.
+    wide: [u32; W],
+}
+
+/// `x` as an integer that orders as [`f32::total_cmp`] orders floats.
+#[inline(always)]
+fn total_key(x: f32) -> i32 {
+    let b = x.to_bits() as i32;
+    b ^ (((b >> 31) as u32) >> 1) as i32
+}
+
 /// Binary tree levels whose two subtrees are planned in parallel rayon
 /// tasks (up to 2^8 tasks; below, one task walks its whole subtree).
 const PAR_LEVELS: usize = 8;
@@ -972,19 +997,24 @@ impl<'a, const W: usize> Plan<'a, W> {
 
     /// The least SAH cost (unscaled by the root's area) of binary node
     /// `n`'s subtree filling at most `s` slots of its parent, for each `s`
-    /// in `1..=W` (index `s - 1`), the subtree's slots when it can be one
-    /// wide leaf (as [`leaf_range`]), and for each `s` the wide nodes the
-    /// collapse makes of the subtree so spread; records the choices and
-    /// [`Self::wide_nodes`]. `level` is `n`'s depth, for the parallel split.
-    fn cost(&self, n: u32, level: usize) -> ([f32; W], Option<(u32, u32)>, [u32; W]) {
+    /// in `1..=W`, with what its parent's plan needs of it (see
+    /// [`Planned`]); records the choices and [`Self::wide_nodes`]. `level`
+    /// is `n`'s depth, for the parallel split.
+    fn cost(&self, n: u32, level: usize) -> Planned<W> {
         let node = *self.bin.node(n);
         let area = node.bounds().half_area();
         let leaf_cost = |(_, c): (u32, u32)| area * BLOCK_COST * c.div_ceil(BLOCK as u32) as f32;
         if node.is_leaf() {
             let range = (node.index, node.count);
-            return ([leaf_cost(range); W], Some(range), [0; W]);
+            let c = leaf_cost(range);
+            return Planned {
+                cost: [c; W],
+                useful: if c.is_nan() { W } else { 1 },
+                range: Some(range),
+                wide: [0; W],
+            };
         }
-        let ((l, lr, lcnt), (r, rr, rcnt)) = if level < PAR_LEVELS {
+        let (l, r) = if level < PAR_LEVELS {
             rayon::join(
                 || self.cost(node.index, level + 1),
                 || self.cost(node.index + 1, level + 1),
@@ -995,23 +1025,33 @@ impl<'a, const W: usize> Plan<'a, W> {
                 self.cost(node.index + 1, level + 1),
             )
         };
-        let range = lr.zip(rr).and_then(|(a, b)| merge_ranges(a, b));
+        let range = l.range.zip(r.range).and_then(|(a, b)| merge_ranges(a, b));
         let leaf = range.map_or(f32::INFINITY, leaf_cost);
         // Slots past a subtree's `useful` ones cost the same as its last
-        // useful one (a pair of binary leaves has one each), so more of
-        // them are never better.
-        let useful = |c: &[f32; W]| (1..W).find(|&s| c[s..].iter().all(|&x| x == c[s - 1]));
-        let (lu, ru) = (useful(&l).unwrap_or(W), useful(&r).unwrap_or(W));
-        // The best split of `s` slots between the two subtrees.
-        let split = |s: usize| {
-            (s.saturating_sub(ru).max(1)..=lu.min(s - 1))
-                .map(|k| (l[k - 1] + r[s - k - 1], k))
-                .min_by(|a, b| a.0.total_cmp(&b.0))
-                .expect("two slots or more")
-        };
+        // useful one, so more of them are never better: the most slots
+        // worth giving the two subtrees together.
+        let top = W.min(l.useful + r.useful);
+        // The best split of `s` slots between the two subtrees, for each
+        // `s` in `2..=top` (index `s - 1`): the first cheapest `k` of the
+        // left's slots, in `total_cmp`'s order (a NaN sum, from infinite
+        // boxes, ranks by its sign), compared as integers.
+        let mut best = [(0.0f32, 0usize); W];
+        for (s, best) in best.iter_mut().enumerate().take(top).skip(1) {
+            let s = s + 1;
+            let (lo, hi) = (s.saturating_sub(r.useful).max(1), l.useful.min(s - 1));
+            let sum = |k: usize| l.cost[k - 1] + r.cost[s - k - 1];
+            *best = (sum(lo), lo);
+            let mut key = total_key(best.0);
+            for k in lo + 1..=hi {
+                let v = sum(k);
+                if total_key(v) < key {
+                    (*best, key) = ((v, k), total_key(v));
+                }
+            }
+        }
         let mut c = [0.0; W];
         let mut choice = [0u8; 8];
-        let (inner, k) = split(W.min(lu + ru));
+        let (inner, k) = best[top - 1];
         let inner = inner + area * NODE_COST;
         // A leaf only where the subtree makes one (NaN costs, from
         // infinite boxes, choose it too).
@@ -1020,17 +1060,26 @@ impl<'a, const W: usize> Plan<'a, W> {
         } else {
             (inner, k as u8)
         };
-        for s in 2..=W {
-            if s > lu + ru {
-                c[s - 1] = c[s - 2];
-                continue;
-            }
-            let (spread, k) = split(s);
+        // Each `s` takes its best split only where that costs less than
+        // `s - 1` slots: `c` never grows, and its last fall is where its
+        // useful slots end. Past `top` slots, each costs what `top` do
+        // (choice 0).
+        let mut useful = 1;
+        for s in 2..=top {
+            let (spread, k) = best[s - 1];
             (c[s - 1], choice[s - 1]) = if spread < c[s - 2] {
+                useful = s;
                 (spread, k as u8)
             } else {
                 (c[s - 2], 0)
             };
+        }
+        let last = c[top - 1];
+        c[top..].fill(last);
+        // NaN costs (then all of `c`) never equal one another: every slot
+        // counts as useful, as in a subtree whose cost falls to the last.
+        if c[W - 1].is_nan() {
+            useful = W;
         }
         // The wide nodes the collapse makes below each way of filling the
         // parent's slots, following the choices as `slots` does: `n` as a
@@ -1040,18 +1089,25 @@ impl<'a, const W: usize> Plan<'a, W> {
         // walking each node's slots (which took 43% more instructions).
         let wide = match choice[0] as usize {
             0 => 0,
-            k => 1 + lcnt[k - 1] + rcnt[W - k - 1],
+            k => 1 + l.wide[k - 1] + r.wide[W - k - 1],
         };
         let mut cnt = [wide; W];
-        for s in 2..=W {
+        for s in 2..=top {
             cnt[s - 1] = match choice[s - 1] as usize {
                 0 => cnt[s - 2],
-                k => lcnt[k - 1] + rcnt[s - k - 1],
+                k => l.wide[k - 1] + r.wide[s - k - 1],
             };
         }
+        let last = cnt[top - 1];
+        cnt[top..].fill(last);
         let packed = (0..W).fold(0u64, |w, i| w | u64::from(choice[i]) << (4 * i));
         self.choice[n as usize].store(packed | u64::from(wide) << 32, Ordering::Relaxed);
-        (c, range, cnt)
+        Planned {
+            cost: c,
+            useful,
+            range,
+            wide: cnt,
+        }
     }
 
     /// The binary nodes that fill the slots of the wide node made of `n`.
@@ -1869,6 +1925,189 @@ mod tests {
             wide.nodes.len() as u32 > 2 * PAR_EMIT,
             "the parallel path ran"
         );
+    }
+
+    /// [`Plan::cost`] as it was first written (each child's useful slots
+    /// found by comparing its costs, each split's minimum by `min_by` over
+    /// `total_cmp`), one thread: the oracle the planner is held to.
+    fn cost_by_closures<const W: usize>(
+        plan: &Plan<'_, W>,
+        n: u32,
+    ) -> ([f32; W], Option<(u32, u32)>, [u32; W]) {
+        let node = *plan.bin.node(n);
+        let area = node.bounds().half_area();
+        let leaf_cost = |(_, c): (u32, u32)| area * BLOCK_COST * c.div_ceil(BLOCK as u32) as f32;
+        if node.is_leaf() {
+            let range = (node.index, node.count);
+            return ([leaf_cost(range); W], Some(range), [0; W]);
+        }
+        let (l, lr, lcnt) = cost_by_closures(plan, node.index);
+        let (r, rr, rcnt) = cost_by_closures(plan, node.index + 1);
+        let range = lr.zip(rr).and_then(|(a, b)| merge_ranges(a, b));
+        let leaf = range.map_or(f32::INFINITY, leaf_cost);
+        // Slots past a subtree's `useful` ones cost the same as its last
+        // useful one (a pair of binary leaves has one each), so more of
+        // them are never better.
+        let useful = |c: &[f32; W]| (1..W).find(|&s| c[s..].iter().all(|&x| x == c[s - 1]));
+        let (lu, ru) = (useful(&l).unwrap_or(W), useful(&r).unwrap_or(W));
+        // The best split of `s` slots between the two subtrees.
+        let split = |s: usize| {
+            (s.saturating_sub(ru).max(1)..=lu.min(s - 1))
+                .map(|k| (l[k - 1] + r[s - k - 1], k))
+                .min_by(|a, b| a.0.total_cmp(&b.0))
+                .expect("two slots or more")
+        };
+        let mut c = [0.0; W];
+        let mut choice = [0u8; 8];
+        let (inner, k) = split(W.min(lu + ru));
+        let inner = inner + area * NODE_COST;
+        // A leaf only where the subtree makes one (NaN costs, from
+        // infinite boxes, choose it too).
+        (c[0], choice[0]) = if range.is_some() && !(inner < leaf) {
+            (leaf, 0)
+        } else {
+            (inner, k as u8)
+        };
+        for s in 2..=W {
+            if s > lu + ru {
+                c[s - 1] = c[s - 2];
+                continue;
+            }
+            let (spread, k) = split(s);
+            (c[s - 1], choice[s - 1]) = if spread < c[s - 2] {
+                (spread, k as u8)
+            } else {
+                (c[s - 2], 0)
+            };
+        }
+        // The wide nodes the collapse makes below each way of filling the
+        // parent's slots, following the choices as `slots` does: `n` as a
+        // wide node of its own (its `k` slots on the left, `W - k` on the
+        // right, as `children` splits them), or `n`'s subtree spread over
+        // `s` slots. Counted here from the children's counts, not by
+        // walking each node's slots (which took 43% more instructions).
+        let wide = match choice[0] as usize {
+            0 => 0,
+            k => 1 + lcnt[k - 1] + rcnt[W - k - 1],
+        };
+        let mut cnt = [wide; W];
+        for s in 2..=W {
+            cnt[s - 1] = match choice[s - 1] as usize {
+                0 => cnt[s - 2],
+                k => lcnt[k - 1] + rcnt[s - k - 1],
+            };
+        }
+        let packed = (0..W).fold(0u64, |w, i| w | u64::from(choice[i]) << (4 * i));
+        plan.choice[n as usize].store(packed | u64::from(wide) << 32, Ordering::Relaxed);
+        (c, range, cnt)
+    }
+
+    /// The planner makes the choices, costs and wide-node counts of the
+    /// first version, bit for bit, on trees where ties and NaN costs
+    /// decide: spread and clustered boxes, piles of identical boxes, flat
+    /// boxes (zero areas: every cost 0), and boxes with NaN and infinite
+    /// corners, from binary trees of small and block-weighed leaves.
+    #[test]
+    fn plan_matches_the_first_planner() {
+        let mut next = crate::test_util::xorshift(0x1234_5677);
+        let mut sets: Vec<Vec<Aabb>> = vec![
+            crate::test_util::clustered_boxes(6_000),
+            (0..3_000)
+                .map(|_| {
+                    let p = Vec3::new(next(), next(), next()) * 10.0;
+                    Aabb::new(p, p + Vec3::new(next(), next(), next()))
+                })
+                .collect(),
+            vec![Aabb::new(Vec3::ZERO, Vec3::ONE); 300],
+            (0..500)
+                .map(|i| {
+                    let p = Vec3::new(i as f32 * 0.1, next(), 0.0);
+                    Aabb::new(p, p + Vec3::new(0.1, 0.0, 0.0))
+                })
+                .collect(),
+        ];
+        let mut odd = crate::test_util::clustered_boxes(3_000);
+        for (i, b) in odd.iter_mut().enumerate() {
+            match i % 37 {
+                // Infinite and flat: its area is NaN (infinity times 0).
+                0 => (b.max.x, b.max.y) = (f32::INFINITY, b.min.y),
+                3 => b.max.x = f32::INFINITY,
+                5 => b.min.y = f32::NEG_INFINITY,
+                11 => b.min.z = f32::NAN,
+                _ => {}
+            }
+        }
+        sets.push(odd);
+        // Boxes infinite on x and flat on y, apart from finite ones: the
+        // first's nodes have NaN areas (infinity times 0), so NaN costs.
+        sets.push(
+            (0..1_000)
+                .map(|i| {
+                    let p = Vec3::new(i as f32, 0.0, (i % 5) as f32 + 100.0 * (i % 2) as f32);
+                    let far = Vec3::new(f32::INFINITY, 0.0, p.z + 1.0);
+                    Aabb::new(p, if i % 2 == 0 { far } else { p + Vec3::ONE })
+                })
+                .collect(),
+        );
+        let (mut planned, mut nan_costs) = (0, 0);
+        for boxes in &sets {
+            for leaf_block in [None, Some(8)] {
+                let config = crate::BuildConfig {
+                    leaf_block,
+                    ..Default::default()
+                };
+                let bin = crate::BvhBuilder::BinnedSah.build(boxes, &config);
+                plans_agree::<8>(&bin);
+                plans_agree::<4>(&bin);
+                planned += bin.pairs.len();
+                nan_costs += (0..bin.pairs.len() as u32 * 2)
+                    .filter(|&k| bin.node(k).bounds().half_area().is_nan())
+                    .count();
+            }
+        }
+        assert!(planned > 5_000, "{planned} pairs planned");
+        assert!(nan_costs > 0, "some nodes' costs are NaN");
+
+        // A leaf of NaN cost beside a node of two full leaves, which
+        // cannot join it in one wide leaf: the root's split of its slots
+        // follows from how many the NaN leaf counts as useful.
+        use crate::bvh::{Node, NodePair};
+        let node = |b: Aabb, index, count| Node {
+            index,
+            count,
+            ..Node::new(b)
+        };
+        let flat = Aabb::new(Vec3::ZERO, Vec3::new(f32::INFINITY, 0.0, 1.0));
+        let unit = Aabb::new(Vec3::ZERO, Vec3::ONE);
+        let bin = Bvh {
+            pairs: vec![
+                NodePair([node(flat.union(unit), 2, 0), Node::new(Aabb::EMPTY)]),
+                NodePair([node(flat, 0, 1), node(unit, 4, 0)]),
+                NodePair([node(unit, 1, 8), node(unit, 9, 8)]),
+            ],
+            prim_ids: (0..17).collect(),
+            depth: 3,
+            parts: false,
+        };
+        plans_agree::<8>(&bin);
+    }
+
+    /// Asserts that [`Plan::new`] and [`cost_by_closures`] plan `bin` alike.
+    fn plans_agree<const W: usize>(bin: &Bvh) {
+        let plan = Plan::<W>::new(bin);
+        let first = Plan::<W> {
+            bin,
+            choice: (0..bin.pairs.len() * 2)
+                .map(|_| AtomicU64::new(0))
+                .collect(),
+        };
+        let (want, want_range, want_wide) = cost_by_closures(&first, 0);
+        let got = crate::test_util::pool(1).install(|| plan.cost(0, 0));
+        assert_eq!(got.cost.map(f32::to_bits), want.map(f32::to_bits));
+        assert_eq!((got.range, got.wide), (want_range, want_wide));
+        for (a, b) in plan.choice.iter().zip(&first.choice) {
+            assert_eq!(a.load(Ordering::Relaxed), b.load(Ordering::Relaxed));
+        }
     }
 
     /// The stack gives items back last in, first out, past its inline
