@@ -1044,8 +1044,9 @@ impl<'a, const W: usize> Plan<'a, W> {
             let mut key = total_key(best.0);
             for k in lo + 1..=hi {
                 let v = sum(k);
-                if total_key(v) < key {
-                    (*best, key) = ((v, k), total_key(v));
+                let kv = total_key(v);
+                if kv < key {
+                    (*best, key) = ((v, k), kv);
                 }
             }
         }
