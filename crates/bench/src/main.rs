@@ -1,5 +1,5 @@
 //! `raymesh-peers MESH... [--rays RAYS.npy | --workloads LIST --size N]
-//! [--threads LIST] [--repeat R] [--interleave] [--accel A] [--peers LIST]
+//! [--threads LIST] [--repeat R] [--build-repeat B] [--interleave] [--accel A] [--peers LIST]
 //! [--markdown] [--json] [--chart OUT.png]`: the same rays through raymesh
 //! and its peers, in one run: Intel Embree 3 (built with `--features
 //! embree`) and the Rust crates obvhs, bvh and parry3d. For each engine and
@@ -46,6 +46,13 @@ struct Args {
     /// Timed repeats; the best is reported.
     #[arg(long, default_value_t = 3)]
     repeat: u32,
+    /// Timed builds of each engine (the best is reported). By default at
+    /// least R (`--repeat`), and more until the engine's builds have
+    /// taken 0.25 s in all (at most 50): a build of a few milliseconds
+    /// varies by a quarter from one to the next on a shared machine, and
+    /// three of them do not settle the ratio.
+    #[arg(long)]
+    build_repeat: Option<u32>,
     /// raymesh structure.
     #[arg(long, default_value = "bvh")]
     accel: AccelKind,
@@ -96,6 +103,26 @@ struct Args {
     /// memory at once.
     #[arg(long)]
     interleave: bool,
+}
+
+/// Milliseconds of an engine's builds after which `--build-repeat`'s
+/// default stops adding builds, once it has R.
+const BUILD_MS: f64 = 250.0;
+
+/// Most builds of an engine that `--build-repeat`'s default times.
+const MAX_BUILDS: u32 = 50;
+
+impl Args {
+    /// Whether an engine that has been built `done` times, taking
+    /// `spent_ms` in all, is built again: `--build-repeat` times if
+    /// given, else at least `--repeat` times and until [`BUILD_MS`], up
+    /// to [`MAX_BUILDS`].
+    fn more_builds(&self, done: u32, spent_ms: f64) -> bool {
+        match self.build_repeat {
+            Some(n) => done < n.max(1),
+            None => done < self.repeat.max(1) || (spent_ms < BUILD_MS && done < MAX_BUILDS),
+        }
+    }
 }
 
 /// `--quality`.
@@ -298,14 +325,19 @@ fn interleaved(
     };
     let mut built: Vec<Option<Box<dyn Engine>>> = names.iter().map(|_| None).collect();
     let mut build_ms = vec![f64::INFINITY; names.len()];
-    for _ in 0..args.repeat.max(1) {
+    let mut spent_ms = vec![0.0; names.len()];
+    let mut rounds = 0;
+    // Rounds until every engine has had its builds (`Args::more_builds`).
+    while spent_ms.iter().any(|&ms| args.more_builds(rounds, ms)) {
         for (i, &name) in names.iter().enumerate() {
             // One structure per engine in memory: the last round's is kept.
             built[i] = None;
             let e = build(name);
             build_ms[i] = build_ms[i].min(e.build_ms());
+            spent_ms[i] += e.build_ms();
             built[i] = Some(e);
         }
+        rounds += 1;
     }
     let engines: Vec<Box<dyn Engine>> = built.into_iter().flatten().collect();
     let builds = names
@@ -464,11 +496,14 @@ fn main() -> Result<()> {
                 // allocator and thread start-up); the last one is traced.
                 let build = || build_engine(name, &args, &mesh.positions, &tris, t);
                 let mut engine = pool.install(build);
-                let mut build_ms = engine.build_ms();
-                for _ in 1..args.repeat {
+                let (mut build_ms, mut spent_ms) = (engine.build_ms(), engine.build_ms());
+                let mut builds_done = 1;
+                while args.more_builds(builds_done, spent_ms) {
                     drop(engine);
                     engine = pool.install(build);
                     build_ms = build_ms.min(engine.build_ms());
+                    spent_ms += engine.build_ms();
+                    builds_done += 1;
                 }
                 builds.push(Build::of(
                     engine.as_ref(),
