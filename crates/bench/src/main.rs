@@ -715,3 +715,40 @@ fn markdown(names: &[&str], builds: &[Build], traces: &[Trace], threads: &[usize
         println!("| {} | {} | {} | {agree} |", tr.mesh, tr.workload, tr.query);
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn args(extra: &[&str]) -> Args {
+        let mut argv = vec!["raymesh-peers", "mesh.off"];
+        argv.extend_from_slice(extra);
+        Args::try_parse_from(argv).expect("valid arguments")
+    }
+
+    /// How many builds `more_builds` asks for, each taking `ms`.
+    fn builds(a: &Args, ms: f64) -> u32 {
+        let mut done = 0;
+        while a.more_builds(done, ms * f64::from(done)) {
+            done += 1;
+            assert!(done <= 1000, "no end to the builds");
+        }
+        done
+    }
+
+    /// By default: at least R builds, then more until 0.25 s of them, at
+    /// most 50; `--build-repeat` gives the count exactly (at least one).
+    #[test]
+    fn builds_fill_the_time_or_the_count() {
+        let default = args(&[]);
+        assert_eq!(builds(&default, 1000.0), 3, "slow builds: R of them");
+        assert_eq!(builds(&default, 100.0), 3, "R builds pass 0.25 s");
+        assert_eq!(builds(&default, 50.0), 5, "until 0.25 s");
+        assert_eq!(builds(&default, 0.1), MAX_BUILDS, "fast builds: capped");
+        assert_eq!(builds(&args(&["--repeat", "7"]), 100.0), 7);
+        assert_eq!(builds(&args(&["--build-repeat", "2"]), 0.1), 2);
+        assert_eq!(builds(&args(&["--build-repeat", "9"]), 1000.0), 9);
+        assert_eq!(builds(&args(&["--build-repeat", "0"]), 1.0), 1);
+        assert_eq!(builds(&args(&["--repeat", "0"]), 1000.0), 1);
+    }
+}
