@@ -112,15 +112,37 @@ const BUILD_MS: f64 = 250.0;
 /// Most builds of an engine that `--build-repeat`'s default times.
 const MAX_BUILDS: u32 = 50;
 
+/// An engine's timed builds so far: the best, their total, their count.
+#[derive(Clone, Copy, Debug)]
+struct BuildTimes {
+    best_ms: f64,
+    spent_ms: f64,
+    done: u32,
+}
+
+impl BuildTimes {
+    const NONE: Self = Self {
+        best_ms: f64::INFINITY,
+        spent_ms: 0.0,
+        done: 0,
+    };
+
+    /// Counts one more build, of `ms` milliseconds.
+    fn add(&mut self, ms: f64) {
+        self.best_ms = self.best_ms.min(ms);
+        self.spent_ms += ms;
+        self.done += 1;
+    }
+}
+
 impl Args {
-    /// Whether an engine that has been built `done` times, taking
-    /// `spent_ms` in all, is built again: `--build-repeat` times if
-    /// given, else at least `--repeat` times and until [`BUILD_MS`], up
-    /// to [`MAX_BUILDS`].
-    fn more_builds(&self, done: u32, spent_ms: f64) -> bool {
+    /// Whether an engine whose builds so far are `t` is built again:
+    /// `--build-repeat` times if given, else at least `--repeat` times
+    /// and until [`BUILD_MS`], up to [`MAX_BUILDS`].
+    fn more_builds(&self, t: &BuildTimes) -> bool {
         match self.build_repeat {
-            Some(n) => done < n.max(1),
-            None => done < self.repeat.max(1) || (spent_ms < BUILD_MS && done < MAX_BUILDS),
+            Some(n) => t.done < n.max(1),
+            None => t.done < self.repeat.max(1) || (t.spent_ms < BUILD_MS && t.done < MAX_BUILDS),
         }
     }
 }
@@ -304,7 +326,7 @@ fn build_engine(
 }
 
 /// `--interleave`'s pass over one mesh at one thread count: every engine
-/// built (best of R builds, taking turns), then each workload and query
+/// built (best of the builds `Args::more_builds` asks for, taking turns), then each workload and query
 /// traced by every engine in turn, R rounds (best of each engine's R).
 /// Returns the builds and traces in the order the one-engine-at-a-time
 /// pass makes them (engine by engine; meshes named by the caller), and
@@ -324,27 +346,32 @@ fn interleaved(
             .install(|| build_engine(name, args, &mesh.positions, tris, t))
     };
     let mut built: Vec<Option<Box<dyn Engine>>> = names.iter().map(|_| None).collect();
-    let mut build_ms = vec![f64::INFINITY; names.len()];
-    let mut spent_ms = vec![0.0; names.len()];
-    let mut rounds = 0;
+    let mut times = vec![BuildTimes::NONE; names.len()];
     // Rounds until every engine has had its builds (`Args::more_builds`).
-    while spent_ms.iter().any(|&ms| args.more_builds(rounds, ms)) {
+    while times.iter().any(|t| args.more_builds(t)) {
         for (i, &name) in names.iter().enumerate() {
             // One structure per engine in memory: the last round's is kept.
             built[i] = None;
             let e = build(name);
-            build_ms[i] = build_ms[i].min(e.build_ms());
-            spent_ms[i] += e.build_ms();
+            times[i].add(e.build_ms());
             built[i] = Some(e);
         }
-        rounds += 1;
     }
     let engines: Vec<Box<dyn Engine>> = built.into_iter().flatten().collect();
     let builds = names
         .iter()
         .zip(&engines)
-        .zip(&build_ms)
-        .map(|((_, e), &ms)| Build::of(e.as_ref(), String::new(), t, args.quality, ms, tris.len()))
+        .zip(&times)
+        .map(|((_, e), b)| {
+            Build::of(
+                e.as_ref(),
+                String::new(),
+                t,
+                args.quality,
+                b.best_ms,
+                tris.len(),
+            )
+        })
         .collect();
     let once = Runner { repeat: 1, ..*run };
     // Per engine, per (workload, query): Mrays/s and agreement.
@@ -492,25 +519,23 @@ fn main() -> Result<()> {
                 rates = r;
             }
             for &name in names.iter().filter(|_| !args.interleave) {
-                // Best of R builds (the first of a process pays for its
+                // Best of several builds (the first of a process pays for its
                 // allocator and thread start-up); the last one is traced.
                 let build = || build_engine(name, &args, &mesh.positions, &tris, t);
                 let mut engine = pool.install(build);
-                let (mut build_ms, mut spent_ms) = (engine.build_ms(), engine.build_ms());
-                let mut builds_done = 1;
-                while args.more_builds(builds_done, spent_ms) {
+                let mut times = BuildTimes::NONE;
+                times.add(engine.build_ms());
+                while args.more_builds(&times) {
                     drop(engine);
                     engine = pool.install(build);
-                    build_ms = build_ms.min(engine.build_ms());
-                    spent_ms += engine.build_ms();
-                    builds_done += 1;
+                    times.add(engine.build_ms());
                 }
                 builds.push(Build::of(
                     engine.as_ref(),
                     mesh_name.clone(),
                     t,
                     args.quality,
-                    build_ms,
+                    times.best_ms,
                     tris.len(),
                 ));
                 let mut mine = Vec::new();
@@ -728,12 +753,13 @@ mod tests {
 
     /// How many builds `more_builds` asks for, each taking `ms`.
     fn builds(a: &Args, ms: f64) -> u32 {
-        let mut done = 0;
-        while a.more_builds(done, ms * f64::from(done)) {
-            done += 1;
-            assert!(done <= 1000, "no end to the builds");
+        let mut t = BuildTimes::NONE;
+        while a.more_builds(&t) {
+            t.add(ms);
+            assert!(t.done <= 1000, "no end to the builds");
         }
-        done
+        assert_eq!(t.best_ms, ms);
+        t.done
     }
 
     /// By default: at least R builds, then more until 0.25 s of them, at
