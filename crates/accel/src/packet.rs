@@ -31,9 +31,10 @@ pub const LANES: usize = 8;
 /// tests need of each, for [`crate::Scene::intersect8`]. All share their
 /// direction's octant and dominant axis (see [`Packet8::new`]).
 #[derive(Clone, Debug)]
-pub struct Packet8 {
-    /// The rays, for the lanes that need the scalar test's f64 path.
-    pub(crate) rays: [Ray; LANES],
+pub struct Packet8<'a> {
+    /// The rays, for the lanes that need the scalar test's f64 path:
+    /// borrowed, not copied (a copy was 480 bytes moved a packet).
+    pub(crate) rays: &'a [Ray; LANES],
     /// Origins by axis.
     origin: [[f32; LANES]; 3],
     /// Reciprocal directions by axis.
@@ -72,13 +73,13 @@ pub(crate) struct Frustum {
     pub(crate) tmin: f32,
 }
 
-impl Packet8 {
+impl<'a> Packet8<'a> {
     /// The packet of `rays`, or `None` unless every ray is valid and all
     /// share their direction's octant and axis order (then each lane's
     /// tests are the single-ray tests; callers trace the rays one by one
     /// otherwise).
     #[must_use]
-    pub fn new(rays: &[Ray; LANES]) -> Option<Self> {
+    pub fn new(rays: &'a [Ray; LANES]) -> Option<Self> {
         let (_, k) = rays[0].shear();
         let oct = rays[0].octant();
         // Plain loops: iterator chains and arrays filled after zeroing made
@@ -134,7 +135,7 @@ impl Packet8 {
         }
         let inv_exit = inv_dir.map(|row| row.map(exit_reciprocal));
         Some(Self {
-            rays: *rays,
+            rays,
             origin,
             inv_dir,
             inv_exit,
@@ -148,7 +149,7 @@ impl Packet8 {
     }
 }
 
-impl Packet8 {
+impl Packet8<'_> {
     /// Which axes the rays run backwards on.
     #[must_use]
     pub(crate) fn neg(&self) -> [bool; 3] {
@@ -284,8 +285,8 @@ pub(crate) fn frustum<const W: usize>(
 #[inline(always)]
 pub(crate) fn le_mask(a: &[f32; LANES], b: &[f32; LANES]) -> u32 {
     #[cfg(target_arch = "x86_64")]
-    if crate::simd::has_avx2() {
-        return crate::simd::le_mask8(a, b);
+    if let Some(avx) = crate::simd::Avx2::detect() {
+        return crate::simd::le_mask8(avx, a, b);
     }
     lane_mask(&std::array::from_fn(|i| a[i] <= b[i]))
 }

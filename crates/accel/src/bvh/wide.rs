@@ -798,21 +798,29 @@ impl<const W: usize> WideBvh<W> {
         #[cfg(target_arch = "x86_64")]
         if let Some(avx) = simd::Avx2::detect() {
             return simd::with_avx2(|| {
-                self.packet_loop(p, tmax, leaf, |p, near, far, bound| {
-                    packet::slab_avx(avx, p, near, far, bound)
-                })
+                self.packet_loop(
+                    p,
+                    tmax,
+                    leaf,
+                    |p, near, far, bound| packet::slab_avx(avx, p, near, far, bound),
+                    |a, b| simd::le_mask8(avx, a, b),
+                )
             });
         }
         // A closure, as for the one-ray walk's portable test.
         let test =
             |p: &Packet8, near, far, bound: &[f32; LANES]| packet::slab_lanes(p, near, far, bound);
-        self.packet_loop(p, tmax, leaf, test);
+        let le = |a: &[f32; LANES], b: &[f32; LANES]| {
+            packet::lane_mask(&std::array::from_fn(|i| a[i] <= b[i]))
+        };
+        self.packet_loop(p, tmax, leaf, test, le);
     }
 
     /// The packet walk, generic over each child's test of the packet's
     /// lanes (`test(packet, near planes, far planes, bounds)`, as
-    /// [`packet::slab_lanes`]), so that the AVX2 walk makes no check per
-    /// child.
+    /// [`packet::slab_lanes`]) and over the lanes' comparison of entries
+    /// with bounds (`le`, as [`packet::le_mask`]), so that the AVX2 walk
+    /// makes no CPU check per child or step.
     #[inline(always)]
     fn packet_loop(
         &self,
@@ -820,6 +828,7 @@ impl<const W: usize> WideBvh<W> {
         tmax: &mut [f32; LANES],
         leaf: &mut impl FnMut(u32, u32, u32, &mut [f32; LANES]),
         test: impl Fn(&Packet8, [f32; 3], [f32; 3], &[f32; LANES]) -> (u32, [f32; LANES]),
+        le: impl Fn(&[f32; LANES], &[f32; LANES]) -> u32,
     ) {
         let mut stack = Stack::new(PacketEntry::NONE);
         let mut cur = PacketEntry {
@@ -830,7 +839,7 @@ impl<const W: usize> WideBvh<W> {
         };
         loop {
             let bound: [f32; LANES] = std::array::from_fn(|i| cull_bound(tmax[i]));
-            let lanes = cur.lanes & packet::le_mask(&cur.entry, &bound);
+            let lanes = cur.lanes & le(&cur.entry, &bound);
             if lanes != 0 {
                 if cur.count > 0 {
                     leaf(cur.child, cur.count, lanes, tmax);
@@ -840,9 +849,13 @@ impl<const W: usize> WideBvh<W> {
                     // test for the packet; then each lane's own test.
                     let keep = match &p.frustum {
                         Some(f) => {
-                            let b = (0..LANES)
-                                .filter(|&i| lanes >> i & 1 != 0)
-                                .fold(f32::NEG_INFINITY, |b, i| max_ns(bound[i], b));
+                            // The greatest bound of the active lanes, by
+                            // selects rather than a filtered loop (a branch
+                            // a lane: 4% of the walk's instructions).
+                            let b = (0..LANES).fold(f32::NEG_INFINITY, |b, i| {
+                                let on = lanes >> i & 1 != 0;
+                                max_ns(if on { bound[i] } else { f32::NEG_INFINITY }, b)
+                            });
                             n.frustum(f, p.neg(), b)
                         }
                         None => u32::MAX,
