@@ -80,6 +80,13 @@ impl<'a> Packet8<'a> {
     /// otherwise).
     #[must_use]
     pub fn new(rays: &'a [Ray; LANES]) -> Option<Self> {
+        Self::coherent(rays).then(|| Self::build(rays))
+    }
+
+    /// Whether `rays` make a packet ([`Self::new`]): all valid, with one
+    /// octant and one axis order.
+    #[inline]
+    pub(crate) fn coherent(rays: &[Ray; LANES]) -> bool {
         let (_, k) = rays[0].shear();
         let oct = rays[0].octant();
         // Plain loops: iterator chains and arrays filled after zeroing made
@@ -93,60 +100,69 @@ impl<'a> Packet8<'a> {
             same &= r.is_valid() & (r.octant() == oct);
             same &= (rk[0] == k[0]) & (rk[1] == k[1]) & (rk[2] == k[2]);
         }
-        if !same {
-            return None;
-        }
-        let (mut origin, mut inv_dir, mut shear) =
-            ([[0.0f32; LANES]; 3], [[0.0; LANES]; 3], [[0.0; LANES]; 3]);
-        let mut tmin = [0.0f32; LANES];
-        for (i, r) in rays.iter().enumerate() {
-            let (o, inv, sh) = (r.origin(), r.inv_dir(), r.shear().0);
-            (origin[0][i], origin[1][i], origin[2][i]) = (o.x, o.y, o.z);
-            (inv_dir[0][i], inv_dir[1][i], inv_dir[2][i]) = (inv.x, inv.y, inv.z);
-            (shear[0][i], shear[1][i], shear[2][i]) = (sh.x, sh.y, sh.z);
-            tmin[i] = r.tmin();
-        }
-        let neg = [oct & 1 != 0, oct & 2 != 0, oct & 4 != 0];
-        let mut finite = true;
-        let mut frustum = Frustum {
-            near_origin: [0.0; 3],
-            far_origin: [0.0; 3],
-            inv: [[0.0; 2]; 3],
-            inv_exit: [[0.0; 2]; 3],
-            tmin: f32::INFINITY,
+        same
+    }
+
+    /// The packet of `rays`, which must be [`Self::coherent`]. Returned by
+    /// value rather than in an `Option`, so that the caller's packet is
+    /// written in place (moved out of an `Option`, its 700 bytes were
+    /// copied once more), and each array filled where it lies.
+    #[inline]
+    pub(crate) fn build(rays: &'a [Ray; LANES]) -> Self {
+        let (_, k) = rays[0].shear();
+        let oct = rays[0].octant();
+        let lanes = |f: fn(&Ray) -> Vec3| -> [[f32; LANES]; 3] {
+            let v: [[f32; 3]; LANES] = std::array::from_fn(|i| f(&rays[i]).to_array());
+            std::array::from_fn(|a| std::array::from_fn(|i| v[i][a]))
         };
-        for a in 0..3 {
-            let (mut o_lo, mut o_hi) = (f32::INFINITY, f32::NEG_INFINITY);
-            let (mut i_lo, mut i_hi) = (f32::INFINITY, f32::NEG_INFINITY);
-            for i in 0..LANES {
-                (o_lo, o_hi) = (o_lo.min(origin[a][i]), o_hi.max(origin[a][i]));
-                (i_lo, i_hi) = (i_lo.min(inv_dir[a][i]), i_hi.max(inv_dir[a][i]));
-                finite &= inv_dir[a][i].is_finite();
-            }
+        let origin = lanes(Ray::origin);
+        let inv_dir = lanes(Ray::inv_dir);
+        let neg = [oct & 1 != 0, oct & 2 != 0, oct & 4 != 0];
+        // The frustum's ends by pairwise reductions over the lanes, which
+        // compile to a few vector steps (a lane at a time, they were the
+        // most of this function's instructions). Origins are finite and
+        // reciprocals never NaN, so the order of the comparisons does not
+        // change the result.
+        let (o_lo, o_hi) = (reduce(&origin, min_ns), reduce(&origin, max_ns));
+        let (i_lo, i_hi) = (reduce(&inv_dir, min_ns), reduce(&inv_dir, max_ns));
+        let finite = inv_dir
+            .iter()
+            .flatten()
+            .fold(true, |f, x| f & x.is_finite());
+        let tmin: [f32; LANES] = std::array::from_fn(|i| rays[i].tmin());
+        let frustum = Frustum {
             // A ray running forward on an axis enters its near plane
             // earliest from the greatest origin, backward from the least.
-            (frustum.near_origin[a], frustum.far_origin[a]) =
-                if neg[a] { (o_lo, o_hi) } else { (o_hi, o_lo) };
-            frustum.inv[a] = [i_lo, i_hi];
-            frustum.inv_exit[a] = [exit_reciprocal(i_lo), exit_reciprocal(i_hi)];
-        }
-        for &t in &tmin {
-            frustum.tmin = frustum.tmin.min(t);
-        }
-        let inv_exit = inv_dir.map(|row| row.map(exit_reciprocal));
-        Some(Self {
+            near_origin: std::array::from_fn(|a| if neg[a] { o_lo[a] } else { o_hi[a] }),
+            far_origin: std::array::from_fn(|a| if neg[a] { o_hi[a] } else { o_lo[a] }),
+            inv: std::array::from_fn(|a| [i_lo[a], i_hi[a]]),
+            inv_exit: std::array::from_fn(|a| [exit_reciprocal(i_lo[a]), exit_reciprocal(i_hi[a])]),
+            tmin: reduce(&[tmin], min_ns)[0],
+        };
+        Self {
             rays,
             origin,
             inv_dir,
-            inv_exit,
+            inv_exit: inv_dir.map(|row| row.map(exit_reciprocal)),
             tmin,
             neg,
             k,
             porigin: [origin[k[0]], origin[k[1]], origin[k[2]]],
-            shear,
+            shear: lanes(|r| r.shear().0),
             frustum: finite.then_some(frustum),
-        })
+        }
     }
+}
+
+/// Each row's lanes combined by `f` in pairs (lane `i` with `i + 4`, then
+/// `i + 2`, then `i + 1`): three vector steps for a row of eight.
+#[inline(always)]
+fn reduce<const N: usize>(rows: &[[f32; LANES]; N], f: fn(f32, f32) -> f32) -> [f32; N] {
+    rows.map(|r| {
+        let h: [f32; 4] = std::array::from_fn(|i| f(r[i], r[i + 4]));
+        let q: [f32; 2] = std::array::from_fn(|i| f(h[i], h[i + 2]));
+        f(q[0], q[1])
+    })
 }
 
 impl Packet8<'_> {
@@ -622,6 +638,73 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    /// The frustum holds the lanes' extremes, whichever lane holds each
+    /// (the pairwise reductions of `build` against a plain fold), in every
+    /// octant; a lane with an infinite reciprocal direction leaves none.
+    #[test]
+    fn frustum_holds_the_lanes_extremes() {
+        let mut f = rng(5);
+        for n in 0..500 {
+            let mut rays = coherent(&mut f);
+            let flip = Vec3::new(
+                if n & 1 == 0 { 1.0 } else { -1.0 },
+                if n & 2 == 0 { 1.0 } else { -1.0 },
+                if n & 4 == 0 { 1.0 } else { -1.0 },
+            );
+            for r in &mut rays {
+                *r = Ray::new(r.origin(), r.dir() * flip, f().abs(), 50.0);
+            }
+            let p = Packet8::new(&rays).expect("one octant and axis order");
+            let fr = p.frustum.expect("finite reciprocals");
+            let fold = |x: &dyn Fn(&Ray) -> f32, max: bool| {
+                rays.iter()
+                    .map(x)
+                    .fold(if max { f32::MIN } else { f32::MAX }, |a, b| {
+                        if max {
+                            a.max(b)
+                        } else {
+                            a.min(b)
+                        }
+                    })
+            };
+            for a in 0..3 {
+                let (lo, hi) = (
+                    fold(&|r| r.origin()[a], false),
+                    fold(&|r| r.origin()[a], true),
+                );
+                let neg = rays[0].dir()[a] < 0.0;
+                assert_eq!(
+                    fr.near_origin[a],
+                    if neg { lo } else { hi },
+                    "case {n} axis {a}"
+                );
+                assert_eq!(
+                    fr.far_origin[a],
+                    if neg { hi } else { lo },
+                    "case {n} axis {a}"
+                );
+                let inv = [
+                    fold(&|r| r.inv_dir()[a], false),
+                    fold(&|r| r.inv_dir()[a], true),
+                ];
+                assert_eq!(fr.inv[a], inv, "case {n} axis {a}");
+                assert_eq!(
+                    fr.inv_exit[a],
+                    inv.map(exit_reciprocal),
+                    "case {n} axis {a}"
+                );
+            }
+            assert_eq!(fr.tmin, fold(&|r| r.tmin(), false), "case {n}");
+            // A zero z component (of the direction's sign): the same
+            // octant and axis order, an infinite reciprocal.
+            for r in &mut rays {
+                *r = Ray::new(r.origin(), r.dir() * Vec3::new(1.0, 1.0, 0.0), 0.0, 1.0);
+            }
+            let p = Packet8::new(&rays).expect("one octant and axis order");
+            assert!(p.frustum.is_none(), "case {n}: a zero direction component");
         }
     }
 

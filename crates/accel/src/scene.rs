@@ -679,7 +679,8 @@ impl<P: Primitives> Scene<P> {
     /// The primitives (in storage order) and hits of [`Self::intersect8`],
     /// or with `ANY` of [`Self::any_hit8`].
     fn packet8<const ANY: bool>(&self, rays: &[Ray; LANES]) -> [Option<(u32, PrimHit)>; LANES] {
-        let (Some(wide), Some(p)) = (self.wide_blocks(), Packet8::new(rays)) else {
+        // Checked, then built in place (see `Packet8::build`).
+        let (Some(wide), true) = (self.wide_blocks(), Packet8::coherent(rays)) else {
             return rays.each_ref().map(|r| {
                 if ANY {
                     self.first_hit(r, &mut NoStats)
@@ -688,6 +689,7 @@ impl<P: Primitives> Scene<P> {
                 }
             });
         };
+        let p = Packet8::build(rays);
         let mut best: [Option<(u32, PrimHit)>; LANES] = [None; LANES];
         let mut tmax: [f32; LANES] = std::array::from_fn(|i| rays[i].tmax());
         // Any hit: a lane that has one is done, its bound set to -inf,
