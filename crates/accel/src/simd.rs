@@ -490,6 +490,12 @@ unsafe fn packet_lanes_avx(
             _mm256_cmp_ps::<_CMP_GT_OQ>(w, zero),
         ),
     );
+    // Every lane outside (the most of a leaf's triangles, for most
+    // packets): no lane can hit, so neither the division nor the hits are
+    // worked out; lanes to redo stay so.
+    if _mm256_movemask_ps(outside) == 0xff {
+        return (0, _mm256_movemask_ps(redo) as u32, BlockHits::default());
+    }
     let det = _mm256_add_ps(_mm256_add_ps(u, v), w);
     let t_scaled = _mm256_add_ps(
         _mm256_add_ps(
