@@ -699,6 +699,36 @@ impl<P: Primitives> Scene<P> {
             // block; triangle by triangle, one packet test per primitive.
             // Fine meshes make leaves that few lanes reach: then the first.
             if lanes.count_ones() * count.div_ceil(BLOCK as u32) < count {
+                // In one AVX2 region, each lane's block test inlined with
+                // its ray's constants (as the one-ray walk's), rather than
+                // a call a block that checks the CPU and redoes them.
+                #[cfg(target_arch = "x86_64")]
+                if let Some(avx) = Avx2::detect() {
+                    avx.run(|| {
+                        let mut m = lanes;
+                        while m != 0 {
+                            let i = m.trailing_zeros() as usize;
+                            m &= m - 1;
+                            let (ray, pre) = (&rays[i], self.prims.block_ray(&rays[i]));
+                            let test =
+                                |s, n, t| self.prims.intersect_block_pre(avx, &pre, s, n, ray, t);
+                            if !ANY {
+                                self.leaf_closest_by(
+                                    first,
+                                    count,
+                                    &mut tmax[i],
+                                    &mut best[i],
+                                    test,
+                                );
+                            } else if let Some(f) = self.leaf_any_by(first, count, ray.tmax(), test)
+                            {
+                                best[i] = Some(f);
+                                tmax[i] = f32::NEG_INFINITY;
+                            }
+                        }
+                    });
+                    return;
+                }
                 let mut m = lanes;
                 while m != 0 {
                     let i = m.trailing_zeros() as usize;
