@@ -21,7 +21,7 @@
 use crate::{BlockHits, PrimHit};
 use raymesh_geometry::{
     exit_reciprocal, intersect_triangle, max_nan_second as max_ns, min_nan_second as min_ns, Ray,
-    Vec3,
+    Vec3, Vec4,
 };
 
 /// Rays in a packet: one per SIMD lane of AVX.
@@ -118,17 +118,16 @@ impl<'a> Packet8<'a> {
         let origin = lanes(Ray::origin);
         let inv_dir = lanes(Ray::inv_dir);
         let neg = [oct & 1 != 0, oct & 2 != 0, oct & 4 != 0];
-        // The frustum's ends by pairwise reductions over the lanes, which
-        // compile to a few vector steps (a lane at a time, they were the
-        // most of this function's instructions). Origins are finite and
-        // reciprocals never NaN, so the order of the comparisons does not
-        // change the result.
-        let (o_lo, o_hi) = (reduce(&origin, min_ns), reduce(&origin, max_ns));
-        let (i_lo, i_hi) = (reduce(&inv_dir, min_ns), reduce(&inv_dir, max_ns));
+        // The frustum's ends by reductions over each row's two halves as
+        // 4-lane vectors (a lane at a time, they were the most of this
+        // function's instructions). Origins are finite and reciprocals
+        // never NaN, so the order of the comparisons does not change the
+        // result.
+        let (o_lo, o_hi) = (row_min(&origin), row_max(&origin));
+        let (i_lo, i_hi) = (row_min(&inv_dir), row_max(&inv_dir));
         let finite = inv_dir
             .iter()
-            .flatten()
-            .fold(true, |f, x| f & x.is_finite());
+            .all(|r| (halves(r).0.is_finite_mask() & halves(r).1.is_finite_mask()).all());
         let tmin: [f32; LANES] = std::array::from_fn(|i| rays[i].tmin());
         let frustum = Frustum {
             // A ray running forward on an axis enters its near plane
@@ -137,7 +136,7 @@ impl<'a> Packet8<'a> {
             far_origin: std::array::from_fn(|a| if neg[a] { o_hi[a] } else { o_lo[a] }),
             inv: std::array::from_fn(|a| [i_lo[a], i_hi[a]]),
             inv_exit: std::array::from_fn(|a| [exit_reciprocal(i_lo[a]), exit_reciprocal(i_hi[a])]),
-            tmin: reduce(&[tmin], min_ns)[0],
+            tmin: row_min(&[tmin])[0],
         };
         Self {
             rays,
@@ -154,14 +153,28 @@ impl<'a> Packet8<'a> {
     }
 }
 
-/// Each row's lanes combined by `f` in pairs (lane `i` with `i + 4`, then
-/// `i + 2`, then `i + 1`): three vector steps for a row of eight.
+/// A row's two halves, lanes `0..4` and `4..8`.
 #[inline(always)]
-fn reduce<const N: usize>(rows: &[[f32; LANES]; N], f: fn(f32, f32) -> f32) -> [f32; N] {
+fn halves(r: &[f32; LANES]) -> (Vec4, Vec4) {
+    (Vec4::from_slice(&r[..4]), Vec4::from_slice(&r[4..]))
+}
+
+/// Each row's least lane: its halves' least lanes, then the least of
+/// those four.
+#[inline(always)]
+fn row_min<const N: usize>(rows: &[[f32; LANES]; N]) -> [f32; N] {
     rows.map(|r| {
-        let h: [f32; 4] = std::array::from_fn(|i| f(r[i], r[i + 4]));
-        let q: [f32; 2] = std::array::from_fn(|i| f(h[i], h[i + 2]));
-        f(q[0], q[1])
+        let (a, b) = halves(&r);
+        a.min(b).min_element()
+    })
+}
+
+/// Each row's greatest lane, as [`row_min`].
+#[inline(always)]
+fn row_max<const N: usize>(rows: &[[f32; LANES]; N]) -> [f32; N] {
+    rows.map(|r| {
+        let (a, b) = halves(&r);
+        a.max(b).max_element()
     })
 }
 
@@ -642,7 +655,7 @@ mod tests {
     }
 
     /// The frustum holds the lanes' extremes, whichever lane holds each
-    /// (the pairwise reductions of `build` against a plain fold), in every
+    /// (the vector reductions of `build` against a plain fold), in every
     /// octant; a lane with an infinite reciprocal direction leaves none.
     #[test]
     fn frustum_holds_the_lanes_extremes() {
