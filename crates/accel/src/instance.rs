@@ -211,6 +211,40 @@ impl<S: Surface> Surface for Instances<S> {
         }
         best
     }
+    /// Packets through a few instances, as [`Self::intersect8`]: each
+    /// instance that some lane's ray enters tests the lanes that entered
+    /// it and are not yet found occluded as one packet of its object.
+    /// The answers are those of [`Surface::occluded`] ray by ray.
+    fn occluded8(&self, rays: &[Ray; LANES]) -> [bool; LANES] {
+        if self.placed.len() > PACKET_INSTANCES {
+            return rays.each_ref().map(|r| self.occluded(r));
+        }
+        let mut lanes = [0u8; PACKET_INSTANCES];
+        for (i, r) in rays.iter().enumerate() {
+            self.top.traverse(r, &mut NoStats, &mut |k| {
+                lanes[k as usize] |= 1 << i;
+                r.tmax()
+            });
+        }
+        let mut found = [false; LANES];
+        for (k, &listed) in lanes.iter().enumerate() {
+            let m = (0..LANES).fold(listed, |m, i| if found[i] { m & !(1 << i) } else { m });
+            if m == 0 {
+                continue;
+            }
+            let p = &self.placed[k];
+            let first = m.trailing_zeros() as usize;
+            let local: [Ray; LANES] = std::array::from_fn(|i| {
+                let i = if m >> i & 1 != 0 { i } else { first };
+                self.local_ray(p, &rays[i], rays[i].tmax())
+            });
+            let occluded = self.objects[p.object as usize].occluded8(&local);
+            for (i, f) in found.iter_mut().enumerate() {
+                *f |= m >> i & 1 != 0 && occluded[i];
+            }
+        }
+        found
+    }
     fn occluded(&self, ray: &Ray) -> bool {
         let mut hit = false;
         self.top.traverse(ray, &mut NoStats, &mut |k| {

@@ -66,6 +66,65 @@ pub struct WorldBytes {
     pub triangles: usize,
 }
 
+/// A hit being shaded: its material, shading and geometric normals (both
+/// turned toward the viewer), the direction back to the viewer, and the
+/// point shadow rays leave from (lifted off the surface).
+struct ShadePoint {
+    mat: Material,
+    n: Vec3,
+    ng: Vec3,
+    view: Vec3,
+    p: Vec3,
+}
+
+/// A light seen from a [`ShadePoint`]: the shadow ray toward it, the unit
+/// direction to it, the radiance it brings, and the cosine at the surface.
+#[derive(Clone, Copy)]
+struct LightRay {
+    ray: Ray,
+    l: Vec3,
+    radiance: Vec3,
+    cos: f32,
+}
+
+impl ShadePoint {
+    /// The shadow ray toward `light`, unless the light is behind the
+    /// surface (by the shading or the geometric normal).
+    fn toward(&self, light: &Light) -> Option<LightRay> {
+        let (l, dist, radiance) = match *light {
+            Light::Point(pos, intensity) => {
+                let to = pos - self.p;
+                let d2 = to.length_squared();
+                let d = d2.sqrt();
+                (to / d, d, intensity / d2)
+            }
+            Light::Directional(to_light, radiance) => (to_light, f32::INFINITY, radiance),
+        };
+        let cos = self.n.dot(l);
+        if cos <= 0.0 || self.ng.dot(l) <= 0.0 {
+            return None;
+        }
+        Some(LightRay {
+            ray: Ray::new(self.p, l, 0.0, dist * (1.0 - 1e-4)),
+            l,
+            radiance,
+            cos,
+        })
+    }
+
+    /// Adds what an unshadowed light brings to `color`: Lambert, then
+    /// Blinn-Phong where the material is specular (two sums, in that
+    /// order, as the image's bits depend on it).
+    fn add_lit(&self, s: &LightRay, color: &mut Vec3) {
+        *color += self.mat.diffuse * s.radiance * s.cos;
+        if self.mat.specular != Vec3::ZERO {
+            let h = (s.l + self.view).normalize_or_zero();
+            *color +=
+                self.mat.specular * s.radiance * self.n.dot(h).max(0.0).powf(self.mat.shininess);
+        }
+    }
+}
+
 /// One bottom-level object: a mesh, or the loose spheres and triangles.
 enum Object {
     Mesh(Scene<Triangles>),
@@ -95,6 +154,12 @@ impl Surface for Object {
         match self {
             Self::Mesh(s) => s.intersect8(rays),
             Self::Shapes(s) => s.intersect8(rays),
+        }
+    }
+    fn occluded8(&self, rays: &[Ray; LANES]) -> [bool; LANES] {
+        match self {
+            Self::Mesh(s) => s.occluded8(rays),
+            Self::Shapes(s) => s.occluded8(rays),
         }
     }
     fn intersect_count(&self, ray: &Ray, stats: &mut CountStats) -> Option<Hit> {
@@ -508,13 +573,57 @@ impl World {
     }
 
     /// [`Self::trace`] of eight camera rays, whose closest hits are found
-    /// together as a packet ([`Surface::intersect8`]: the same hits, so the
-    /// same image, faster for a camera's neighbouring rays); each is then
-    /// shaded on its own.
+    /// together as a packet ([`Surface::intersect8`]), and whose shadow
+    /// rays toward each light are tested together too
+    /// ([`Surface::occluded8`]): the same answers, so the same image,
+    /// faster for a camera's neighbouring rays. Mirror reflections are
+    /// traced one by one.
     pub fn trace8(&self, camera: &[Ray; LANES], rays: &mut u64) -> [Vec3; LANES] {
         *rays += LANES as u64;
         let hits = self.scene.intersect8(camera);
-        std::array::from_fn(|i| self.shade(&camera[i], hits[i], 0, rays))
+        let points: [Option<ShadePoint>; LANES] =
+            std::array::from_fn(|i| hits[i].map(|h| self.shade_point(&camera[i], &h)));
+        // The sums in `shade`'s order: ambient, each light in turn, mirror.
+        let mut color: [Vec3; LANES] = std::array::from_fn(|i| match &points[i] {
+            Some(sp) => sp.mat.ambient * self.ambient,
+            None => self.background,
+        });
+        for light in &self.lights {
+            let shadows: [Option<LightRay>; LANES] =
+                std::array::from_fn(|i| points[i].as_ref().and_then(|sp| sp.toward(light)));
+            let active = (0..LANES).fold(0u32, |m, i| m | u32::from(shadows[i].is_some()) << i);
+            if active == 0 {
+                continue;
+            }
+            *rays += u64::from(active.count_ones());
+            // A lane without a shadow ray repeats one that has, its answer
+            // unused, so that the eight still make a packet.
+            let first = shadows[active.trailing_zeros() as usize].map(|s| s.ray);
+            let blocked = match first {
+                Some(r) if active.count_ones() > 1 => {
+                    let batch = std::array::from_fn(|i| shadows[i].map_or(r, |s| s.ray));
+                    self.scene.occluded8(&batch)
+                }
+                _ => {
+                    std::array::from_fn(|i| shadows[i].is_some_and(|s| self.scene.occluded(&s.ray)))
+                }
+            };
+            for i in 0..LANES {
+                if let (Some(sp), Some(s)) = (&points[i], &shadows[i]) {
+                    if !blocked[i] {
+                        sp.add_lit(s, &mut color[i]);
+                    }
+                }
+            }
+        }
+        for i in 0..LANES {
+            if let Some(sp) = &points[i] {
+                if let Some(m) = self.mirror(&camera[i], sp, 0, rays) {
+                    color[i] += m;
+                }
+            }
+        }
+        color
     }
 
     /// The radiance `ray` brings back from `hit` (the background on a miss).
@@ -522,7 +631,26 @@ impl World {
         let Some(hit) = hit else {
             return self.background;
         };
-        let (mat, mut n) = self.shade_info(&hit);
+        let sp = self.shade_point(ray, &hit);
+        let mut color = sp.mat.ambient * self.ambient;
+        for light in &self.lights {
+            let Some(s) = sp.toward(light) else {
+                continue;
+            };
+            *rays += 1;
+            if !self.scene.occluded(&s.ray) {
+                sp.add_lit(&s, &mut color);
+            }
+        }
+        if let Some(m) = self.mirror(ray, &sp, depth, rays) {
+            color += m;
+        }
+        color
+    }
+
+    /// What shading `hit` of `ray` needs before its lights.
+    fn shade_point(&self, ray: &Ray, hit: &Hit) -> ShadePoint {
+        let (mat, mut n) = self.shade_info(hit);
         let mut ng = hit.normal;
         let view = -ray.dir().normalize();
         // Shade the side the ray came from.
@@ -536,40 +664,24 @@ impl World {
         let hp = ray.at(hit.t);
         // Leave the surface by a little more than rounding can move a hit point.
         let p = hp + ng * self.epsilon.max(hp.abs().max_element() * 1e-6);
-        let mut color = mat.ambient * self.ambient;
-        for light in &self.lights {
-            let (l, dist, radiance) = match *light {
-                Light::Point(pos, intensity) => {
-                    let to = pos - p;
-                    let d2 = to.length_squared();
-                    let d = d2.sqrt();
-                    (to / d, d, intensity / d2)
-                }
-                Light::Directional(to_light, radiance) => (to_light, f32::INFINITY, radiance),
-            };
-            let cos = n.dot(l);
-            if cos <= 0.0 || ng.dot(l) <= 0.0 {
-                continue;
-            }
-            *rays += 1;
-            if self
-                .scene
-                .occluded(&Ray::new(p, l, 0.0, dist * (1.0 - 1e-4)))
-            {
-                continue;
-            }
-            color += mat.diffuse * radiance * cos;
-            if mat.specular != Vec3::ZERO {
-                let h = (l + view).normalize_or_zero();
-                color += mat.specular * radiance * n.dot(h).max(0.0).powf(mat.shininess);
-            }
+        ShadePoint {
+            mat,
+            n,
+            ng,
+            view,
+            p,
         }
-        if mat.mirror != Vec3::ZERO && depth < self.max_depth {
-            let d = ray.dir().normalize();
-            let r = d - 2.0 * d.dot(n) * n;
-            color += mat.mirror * self.trace(&Ray::infinite(p, r), depth + 1, rays);
+    }
+
+    /// The mirror reflection's radiance at `sp` (traced one by one), if
+    /// its material reflects and `depth` allows another bounce.
+    fn mirror(&self, ray: &Ray, sp: &ShadePoint, depth: u32, rays: &mut u64) -> Option<Vec3> {
+        if sp.mat.mirror == Vec3::ZERO || depth >= self.max_depth {
+            return None;
         }
-        color
+        let d = ray.dir().normalize();
+        let r = d - 2.0 * d.dot(sp.n) * sp.n;
+        Some(sp.mat.mirror * self.trace(&Ray::infinite(sp.p, r), depth + 1, rays))
     }
 
     /// Nodes visited plus primitives tested by the camera ray.

@@ -80,6 +80,64 @@ fn every_structure_renders_the_same_image() {
     }
 }
 
+/// Eight camera rays traced together (`trace8`: the hits and then each
+/// light's shadow rays as packets) give each ray's radiance bit for bit
+/// and count the same rays as tracing them one by one, over a mesh and
+/// its instances under a structure that takes packets and one that does
+/// not; with several lanes shadowed, some lit, some missing everything.
+#[test]
+fn packets_shade_as_one_by_one() {
+    let mut desc = raymesh_render::demo_scene();
+    let extra = r#"{"type": "mesh", "file": "elephant-with-holes.off", "shading": "flat",
+        "instances": [{"translate": [3, 0.5, 2], "scale": 1.5}, {"translate": [-3, 0.5, 2], "rotate": [0, 90, 0], "scale": 1.5}]}"#;
+    desc.surfaces.push(serde_json::from_str(extra).unwrap());
+    let (w, h) = (64u32, 48u32);
+    for kind in [AccelKind::Bvh8, AccelKind::Brute] {
+        desc.accel = kind.name().to_string();
+        let world = World::build(&desc, Path::new("demo"), &|name| {
+            if name == "builtin:torus-knot" {
+                Ok(raymesh_render::torus_knot(96, 16))
+            } else {
+                raymesh_mesh::io::read_mesh(
+                    Path::new(env!("CARGO_MANIFEST_DIR"))
+                        .join("../../tests/data")
+                        .join(name),
+                )
+                .map_err(|e| e.to_string())
+            }
+        })
+        .unwrap();
+        let (mut background, mut lit) = (0, 0);
+        for by in (0..h).step_by(2) {
+            for bx in (0..w).step_by(4) {
+                let rays: [_; 8] = std::array::from_fn(|i| {
+                    let (x, y) = (bx + i as u32 % 4, by + i as u32 / 4);
+                    let (sx, sy) = ((x as f32 + 0.5) / w as f32, (y as f32 + 0.5) / h as f32);
+                    world.camera.ray(sx, sy)
+                });
+                let (mut n8, mut n1) = (0u64, 0u64);
+                let got = world.trace8(&rays, &mut n8);
+                for (i, r) in rays.iter().enumerate() {
+                    let want = world.trace(r, 0, &mut n1);
+                    let bits = |v: Vec3| v.to_array().map(f32::to_bits);
+                    assert_eq!(
+                        bits(got[i]),
+                        bits(want),
+                        "{kind}: block ({bx}, {by}), lane {i}"
+                    );
+                    background += usize::from(want == world.background);
+                    lit += usize::from(want != world.background);
+                }
+                assert_eq!(n8, n1, "{kind}: rays counted, block ({bx}, {by})");
+            }
+        }
+        assert!(
+            background > 100 && lit > 1000,
+            "{kind}: {background} background, {lit} lit"
+        );
+    }
+}
+
 #[test]
 fn a_sphere_covers_the_disc_it_must() {
     // Camera at distance D looking at a sphere of radius r: its silhouette is
