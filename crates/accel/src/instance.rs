@@ -155,6 +155,21 @@ impl<S: Surface> Instances<S> {
     }
 }
 
+impl<S: Surface> Instances<S> {
+    /// For each instance, a bit per lane whose ray enters its box (a scene
+    /// of at most [`PACKET_INSTANCES`] instances).
+    fn packet_lanes(&self, rays: &[Ray; LANES]) -> [u8; PACKET_INSTANCES] {
+        let mut lanes = [0u8; PACKET_INSTANCES];
+        for (i, r) in rays.iter().enumerate() {
+            self.top.traverse(r, &mut NoStats, &mut |k| {
+                lanes[k as usize] |= 1 << i;
+                r.tmax()
+            });
+        }
+        lanes
+    }
+}
+
 impl<S: Surface> Surface for Instances<S> {
     fn bounds(&self) -> Aabb {
         self.bounds
@@ -177,13 +192,7 @@ impl<S: Surface> Surface for Instances<S> {
         if self.placed.len() > PACKET_INSTANCES {
             return rays.each_ref().map(|r| self.intersect(r));
         }
-        let mut lanes = [0u8; PACKET_INSTANCES];
-        for (i, r) in rays.iter().enumerate() {
-            self.top.traverse(r, &mut NoStats, &mut |k| {
-                lanes[k as usize] |= 1 << i;
-                r.tmax()
-            });
-        }
+        let lanes = self.packet_lanes(rays);
         let mut best: [Option<Hit>; LANES] = [None; LANES];
         for (k, &m) in lanes.iter().enumerate().filter(|(_, &m)| m != 0) {
             let p = &self.placed[k];
@@ -219,13 +228,7 @@ impl<S: Surface> Surface for Instances<S> {
         if self.placed.len() > PACKET_INSTANCES {
             return rays.each_ref().map(|r| self.occluded(r));
         }
-        let mut lanes = [0u8; PACKET_INSTANCES];
-        for (i, r) in rays.iter().enumerate() {
-            self.top.traverse(r, &mut NoStats, &mut |k| {
-                lanes[k as usize] |= 1 << i;
-                r.tmax()
-            });
-        }
+        let lanes = self.packet_lanes(rays);
         let mut found = [false; LANES];
         for (k, &listed) in lanes.iter().enumerate() {
             let m = (0..LANES).fold(listed, |m, i| if found[i] { m & !(1 << i) } else { m });

@@ -6,19 +6,25 @@ use raymesh_geometry::Vec3;
 use raymesh_render::{render, Mode, Options, SceneDesc, World};
 use std::path::Path;
 
+/// The mesh a scene names: the built-in knot at `knot` (segments, sides),
+/// else a file of `tests/data`.
+fn load_mesh(name: &str, knot: (u32, u32)) -> Result<raymesh_mesh::IndexedMesh, String> {
+    if name == "builtin:torus-knot" {
+        Ok(raymesh_render::torus_knot(knot.0, knot.1))
+    } else {
+        raymesh_mesh::io::read_mesh(
+            Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("../../tests/data")
+                .join(name),
+        )
+        .map_err(|e| e.to_string())
+    }
+}
+
 fn world(json: &str) -> World {
     let desc = SceneDesc::parse(json, Path::new("test.json")).unwrap_or_else(|e| panic!("{e}"));
     World::build(&desc, Path::new("test.json"), &|name| {
-        if name == "builtin:torus-knot" {
-            Ok(raymesh_render::torus_knot(64, 12))
-        } else {
-            raymesh_mesh::io::read_mesh(
-                Path::new(env!("CARGO_MANIFEST_DIR"))
-                    .join("../../tests/data")
-                    .join(name),
-            )
-            .map_err(|e| e.to_string())
-        }
+        load_mesh(name, (64, 12))
     })
     .unwrap_or_else(|e| panic!("{e}"))
 }
@@ -50,19 +56,7 @@ fn every_structure_renders_the_same_image() {
     for (kind, splits) in builds {
         desc.accel = kind.name().to_string();
         desc.spatial_splits = splits;
-        let w = World::build(&desc, Path::new("demo"), &|name| {
-            if name == "builtin:torus-knot" {
-                Ok(raymesh_render::torus_knot(96, 16))
-            } else {
-                raymesh_mesh::io::read_mesh(
-                    Path::new(env!("CARGO_MANIFEST_DIR"))
-                        .join("../../tests/data")
-                        .join(name),
-                )
-                .map_err(|e| e.to_string())
-            }
-        })
-        .unwrap();
+        let w = World::build(&desc, Path::new("demo"), &|name| load_mesh(name, (96, 16))).unwrap();
         let img = shade(&w);
         match &reference {
             None => reference = Some(img),
@@ -94,19 +88,8 @@ fn packets_shade_as_one_by_one() {
     let (w, h) = (64u32, 48u32);
     for kind in [AccelKind::Bvh8, AccelKind::Brute] {
         desc.accel = kind.name().to_string();
-        let world = World::build(&desc, Path::new("demo"), &|name| {
-            if name == "builtin:torus-knot" {
-                Ok(raymesh_render::torus_knot(96, 16))
-            } else {
-                raymesh_mesh::io::read_mesh(
-                    Path::new(env!("CARGO_MANIFEST_DIR"))
-                        .join("../../tests/data")
-                        .join(name),
-                )
-                .map_err(|e| e.to_string())
-            }
-        })
-        .unwrap();
+        let world =
+            World::build(&desc, Path::new("demo"), &|name| load_mesh(name, (96, 16))).unwrap();
         let (mut background, mut lit) = (0, 0);
         for by in (0..h).step_by(2) {
             for bx in (0..w).step_by(4) {
