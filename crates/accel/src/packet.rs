@@ -125,9 +125,10 @@ impl<'a> Packet8<'a> {
         // result.
         let (o_lo, o_hi) = (row_min(&origin), row_max(&origin));
         let (i_lo, i_hi) = (row_min(&inv_dir), row_max(&inv_dir));
-        let finite = inv_dir
-            .iter()
-            .all(|r| (halves(r).0.is_finite_mask() & halves(r).1.is_finite_mask()).all());
+        let finite = inv_dir.iter().all(|r| {
+            let (a, b) = halves(r);
+            (a.is_finite_mask() & b.is_finite_mask()).all()
+        });
         let tmin: [f32; LANES] = std::array::from_fn(|i| rays[i].tmin());
         let frustum = Frustum {
             // A ray running forward on an axis enters its near plane

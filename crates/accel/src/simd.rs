@@ -424,7 +424,8 @@ unsafe fn packet_triangle_impl(
 
 /// [`crate::packet::lanes_portable`] in AVX2, one ray a lane: the same
 /// operations in the same order (no fused multiply-add), so the same
-/// masks and the same bits of `t`, `u`, `v`. The portable loop, compiled
+/// masks and, for the lanes hit, the same bits of `t`, `u`, `v` (when no
+/// lane is inside the triangle it stops before working them out). The portable loop, compiled
 /// with AVX2, built its masks from arrays of `bool`s lane by lane.
 ///
 /// # Safety
