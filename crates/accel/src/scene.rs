@@ -710,41 +710,25 @@ impl<P: Primitives> Scene<P> {
                 #[cfg(target_arch = "x86_64")]
                 if let Some(avx) = Avx2::detect() {
                     avx.run(|| {
-                        let mut m = lanes;
-                        while m != 0 {
-                            let i = m.trailing_zeros() as usize;
-                            m &= m - 1;
-                            let (ray, pre) = (&rays[i], self.prims.block_ray(&rays[i]));
-                            let test =
-                                |s, n, t| self.prims.intersect_block_pre(avx, &pre, s, n, ray, t);
-                            if !ANY {
-                                self.leaf_closest_by(
-                                    first,
-                                    count,
-                                    &mut tmax[i],
-                                    &mut best[i],
-                                    test,
-                                );
-                            } else if let Some(f) = self.leaf_any_by(first, count, ray.tmax(), test)
-                            {
-                                best[i] = Some(f);
-                                tmax[i] = f32::NEG_INFINITY;
-                            }
-                        }
+                        self.leaf_lanes::<ANY, _>(
+                            rays,
+                            (first, count, lanes),
+                            tmax,
+                            &mut best,
+                            |r| self.prims.block_ray(r),
+                            |r, pre, s, n, t| self.prims.intersect_block_pre(avx, pre, s, n, r, t),
+                        );
                     });
                     return;
                 }
-                let mut m = lanes;
-                while m != 0 {
-                    let i = m.trailing_zeros() as usize;
-                    m &= m - 1;
-                    if !ANY {
-                        self.leaf_closest(&rays[i], first, count, &mut tmax[i], &mut best[i]);
-                    } else if let Some(f) = self.leaf_any(&rays[i], first, count) {
-                        best[i] = Some(f);
-                        tmax[i] = f32::NEG_INFINITY;
-                    }
-                }
+                self.leaf_lanes::<ANY, _>(
+                    rays,
+                    (first, count, lanes),
+                    tmax,
+                    &mut best,
+                    |_| (),
+                    |r, (), s, n, t| self.prims.intersect_block(s, n, r, t),
+                );
                 return;
             }
             self.prims.intersect_packet_run(
@@ -769,6 +753,37 @@ impl<P: Primitives> Scene<P> {
             WideRef::W2(b) => b.traverse_packet(&p, &mut tmax, &mut leaf),
         }
         best
+    }
+
+    /// A packet's leaf (`first..first + count`) tested lane by lane for
+    /// the lanes in `lanes`, as each ray alone would: each lane's block
+    /// test is `test(ray, &pre(ray), first, count, tmax)`, with `pre` the
+    /// ray's constants for it (made once a lane). Closest hits lower the
+    /// lane's `tmax`; with `ANY`, a lane's first hit ends it (`tmax` to
+    /// `-inf`).
+    #[inline(always)]
+    fn leaf_lanes<const ANY: bool, R>(
+        &self,
+        rays: &[Ray; LANES],
+        (first, count, lanes): (u32, u32, u32),
+        tmax: &mut [f32; LANES],
+        best: &mut [Option<(u32, PrimHit)>; LANES],
+        pre: impl Fn(&Ray) -> R,
+        test: impl Fn(&Ray, &R, u32, u32, f32) -> (u32, BlockHits),
+    ) {
+        let mut m = lanes;
+        while m != 0 {
+            let i = m.trailing_zeros() as usize;
+            m &= m - 1;
+            let (ray, pre) = (&rays[i], pre(&rays[i]));
+            let test = |s, n, t| test(ray, &pre, s, n, t);
+            if !ANY {
+                self.leaf_closest_by(first, count, &mut tmax[i], &mut best[i], test);
+            } else if let Some(f) = self.leaf_any_by(first, count, ray.tmax(), test) {
+                best[i] = Some(f);
+                tmax[i] = f32::NEG_INFINITY;
+            }
+        }
     }
 
     /// The closest hits of many rays: `out[i]` is [`Self::intersect`] of
