@@ -40,7 +40,7 @@ pub use packet::{Packet8, LANES};
 pub use prims::{
     BlockHits, PrimHit, Primitives, Shape, Shapes, Spheres, TriangleMesh, Triangles, BLOCK,
 };
-pub use raymesh_geometry::{Aabb, Ray, Vec3};
+pub use raymesh_geometry::{Aabb, Ray, Rays8, Vec3};
 pub use scene::{BareHit, Hit, Scene, Surface};
 pub use simd::{set_avx512_enabled, set_simd_enabled, Avx2, BlockRay};
 pub use stats::{AccelStats, CountStats, NoStats, RayCounter};

@@ -21,7 +21,7 @@
 use crate::{BlockHits, PrimHit};
 use raymesh_geometry::{
     exit_reciprocal, intersect_triangle, max_nan_second as max_ns, min_nan_second as min_ns, Ray,
-    Vec3, Vec4,
+    RayLanes8, Vec3, Vec4,
 };
 
 /// Rays in a packet: one per SIMD lane of AVX.
@@ -110,13 +110,50 @@ impl<'a> Packet8<'a> {
     #[inline]
     pub(crate) fn build(rays: &'a [Ray; LANES]) -> Self {
         let (_, k) = rays[0].shear();
-        let oct = rays[0].octant();
         let lanes = |f: fn(&Ray) -> Vec3| -> [[f32; LANES]; 3] {
             let v: [[f32; 3]; LANES] = std::array::from_fn(|i| f(&rays[i]).to_array());
             std::array::from_fn(|a| std::array::from_fn(|i| v[i][a]))
         };
-        let origin = lanes(Ray::origin);
-        let inv_dir = lanes(Ray::inv_dir);
+        Self::assemble(
+            rays,
+            lanes(Ray::origin),
+            lanes(Ray::inv_dir),
+            lanes(|r| r.shear().0),
+            std::array::from_fn(|i| rays[i].tmin()),
+            k,
+            rays[0].octant(),
+        )
+    }
+
+    /// The packet of rays made together ([`raymesh_geometry::Rays8::lanes`]): their rows
+    /// taken as they are, with no transposition and nothing checked again
+    /// (the same packet as [`Self::build`] of `lanes.rays`).
+    #[inline]
+    pub(crate) fn from_lanes(lanes: &'a RayLanes8) -> Self {
+        Self::assemble(
+            &lanes.rays,
+            lanes.origin,
+            lanes.inv_dir,
+            lanes.shear,
+            lanes.tmin,
+            lanes.k,
+            lanes.octant,
+        )
+    }
+
+    /// The packet of `rays`, given by rows (each lane's origin, reciprocal
+    /// direction, shear constants and `tmin`) with their shared axis order
+    /// and octant.
+    #[inline(always)]
+    fn assemble(
+        rays: &'a [Ray; LANES],
+        origin: [[f32; LANES]; 3],
+        inv_dir: [[f32; LANES]; 3],
+        shear: [[f32; LANES]; 3],
+        tmin: [f32; LANES],
+        k: [usize; 3],
+        oct: usize,
+    ) -> Self {
         let neg = [oct & 1 != 0, oct & 2 != 0, oct & 4 != 0];
         // The frustum's ends by reductions over each row's two halves as
         // 4-lane vectors (a lane at a time, they were the most of this
@@ -129,7 +166,6 @@ impl<'a> Packet8<'a> {
             let (a, b) = halves(r);
             (a.is_finite_mask() & b.is_finite_mask()).all()
         });
-        let tmin: [f32; LANES] = std::array::from_fn(|i| rays[i].tmin());
         let frustum = Frustum {
             // A ray running forward on an axis enters its near plane
             // earliest from the greatest origin, backward from the least.
@@ -148,7 +184,7 @@ impl<'a> Packet8<'a> {
             neg,
             k,
             porigin: [origin[k[0]], origin[k[1]], origin[k[2]]],
-            shear: lanes(|r| r.shear().0),
+            shear,
             frustum: finite.then_some(frustum),
         }
     }

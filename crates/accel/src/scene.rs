@@ -7,7 +7,7 @@ use crate::{
     Accel, AccelKind, AccelStats, Avx2, BlockHits, BuildConfig, Bvh, Bvh4, Bvh8, CountStats, Grid,
     NoStats, PrimHit, Primitives, RayCounter, TriangleMesh, Triangles,
 };
-use raymesh_geometry::{Aabb, Ray, Vec3};
+use raymesh_geometry::{Aabb, Ray, RayLanes8, Rays8, Vec3};
 use rayon::prelude::*;
 use std::time::Instant;
 
@@ -676,20 +676,83 @@ impl<P: Primitives> Scene<P> {
         self.packet8::<true>(rays).map(|f| f.is_some())
     }
 
+    /// [`Self::intersect8`] of eight rays given as rows ([`Rays8`], the
+    /// layout of Embree's `RTCRay8`): the same hits as
+    /// [`Self::intersect8`] of each lane's [`Rays8::ray`], with the rays'
+    /// constants made for the eight lanes at once ([`Rays8::lanes`]).
+    pub fn intersect8_soa(&self, rays: &Rays8) -> [Option<Hit>; LANES] {
+        let Some(lanes) = rays.lanes() else {
+            return self.intersect8(&std::array::from_fn(|i| rays.ray(i)));
+        };
+        let best = self.packet8_lanes::<false>(&lanes);
+        std::array::from_fn(|i| best[i].map(|(prim, h)| self.hit(prim, &lanes.rays[i], h)))
+    }
+
+    /// [`Self::intersect8_soa`] without the normals: the same hits.
+    pub fn intersect8_soa_bare(&self, rays: &Rays8) -> [Option<BareHit>; LANES] {
+        let Some(lanes) = rays.lanes() else {
+            return self.intersect8_bare(&std::array::from_fn(|i| rays.ray(i)));
+        };
+        self.packet8_lanes::<false>(&lanes)
+            .map(|b| b.map(|(prim, h)| self.bare(prim, h)))
+    }
+
+    /// [`Self::any_hit8_bare`] of eight rays given as rows ([`Rays8`]), as
+    /// [`Self::intersect8_soa`].
+    pub fn any_hit8_soa_bare(&self, rays: &Rays8) -> [Option<BareHit>; LANES] {
+        let Some(lanes) = rays.lanes() else {
+            return self.any_hit8_bare(&std::array::from_fn(|i| rays.ray(i)));
+        };
+        self.packet8_lanes::<true>(&lanes)
+            .map(|b| b.map(|(prim, h)| self.bare(prim, h)))
+    }
+
+    /// [`Self::occluded8`] of eight rays given as rows ([`Rays8`]), as
+    /// [`Self::intersect8_soa`].
+    pub fn occluded8_soa(&self, rays: &Rays8) -> [bool; LANES] {
+        let Some(lanes) = rays.lanes() else {
+            return self.occluded8(&std::array::from_fn(|i| rays.ray(i)));
+        };
+        self.packet8_lanes::<true>(&lanes).map(|f| f.is_some())
+    }
+
     /// The primitives (in storage order) and hits of [`Self::intersect8`],
     /// or with `ANY` of [`Self::any_hit8`].
     fn packet8<const ANY: bool>(&self, rays: &[Ray; LANES]) -> [Option<(u32, PrimHit)>; LANES] {
         // Checked, then built in place (see `Packet8::build`).
         let (Some(wide), true) = (self.wide_blocks(), Packet8::coherent(rays)) else {
-            return rays.each_ref().map(|r| {
-                if ANY {
-                    self.first_hit(r, &mut NoStats)
-                } else {
-                    self.closest(r, &mut NoStats)
-                }
-            });
+            return self.one_by_one::<ANY>(rays);
         };
-        let p = Packet8::build(rays);
+        self.walk_packet::<ANY>(wide, &Packet8::build(rays))
+    }
+
+    /// [`Self::packet8`] of rays made together ([`Rays8::lanes`]).
+    fn packet8_lanes<const ANY: bool>(&self, lanes: &RayLanes8) -> [Option<(u32, PrimHit)>; LANES] {
+        let Some(wide) = self.wide_blocks() else {
+            return self.one_by_one::<ANY>(&lanes.rays);
+        };
+        self.walk_packet::<ANY>(wide, &Packet8::from_lanes(lanes))
+    }
+
+    /// [`Self::packet8`] of rays that make no packet: each ray alone.
+    fn one_by_one<const ANY: bool>(&self, rays: &[Ray; LANES]) -> [Option<(u32, PrimHit)>; LANES] {
+        rays.each_ref().map(|r| {
+            if ANY {
+                self.first_hit(r, &mut NoStats)
+            } else {
+                self.closest(r, &mut NoStats)
+            }
+        })
+    }
+
+    /// The packet walk of [`Self::packet8`] over the BVH `wide`.
+    #[inline(always)]
+    fn walk_packet<const ANY: bool>(
+        &self,
+        wide: WideRef<'_>,
+        p: &Packet8,
+    ) -> [Option<(u32, PrimHit)>; LANES] {
+        let rays = p.rays;
         let mut best: [Option<(u32, PrimHit)>; LANES] = [None; LANES];
         let mut tmax: [f32; LANES] = std::array::from_fn(|i| rays[i].tmax());
         // Any hit: a lane that has one is done, its bound set to -inf,
@@ -734,7 +797,7 @@ impl<P: Primitives> Scene<P> {
             self.prims.intersect_packet_run(
                 first,
                 count,
-                &p,
+                p,
                 lanes,
                 tmax,
                 &mut |i, prim, h, tmax| {
@@ -748,9 +811,9 @@ impl<P: Primitives> Scene<P> {
             );
         };
         match wide {
-            WideRef::W4(b) => b.traverse_packet(&p, &mut tmax, &mut leaf),
-            WideRef::W8(b) => b.traverse_packet(&p, &mut tmax, &mut leaf),
-            WideRef::W2(b) => b.traverse_packet(&p, &mut tmax, &mut leaf),
+            WideRef::W4(b) => b.traverse_packet(p, &mut tmax, &mut leaf),
+            WideRef::W8(b) => b.traverse_packet(p, &mut tmax, &mut leaf),
+            WideRef::W2(b) => b.traverse_packet(p, &mut tmax, &mut leaf),
         }
         best
     }

@@ -46,14 +46,20 @@ fn check(s: &dyn Surface, rays: &[Ray], what: &str) -> usize {
 /// triangles: a lane has a hit exactly when its ray is occluded, and the
 /// hit is its triangle's own (the same bits of `t`, `u`, `v` as the
 /// watertight test of that triangle alone), whichever one the packet
-/// found first; `any_hit8_bare` and `occluded8` say the same.
+/// found first; `any_hit8_bare` and `occluded8` say the same, and so do
+/// `any_hit8_soa_bare` and `occluded8_soa` of the rays as rows.
 fn check_any<P: Primitives>(s: &Scene<P>, m: &TriangleMesh, rays: &[Ray], what: &str) {
     for chunk in rays.chunks(LANES) {
         let packet: [Ray; LANES] = std::array::from_fn(|i| chunk[i % chunk.len()]);
         let (full, bare) = (s.any_hit8(&packet), s.any_hit8_bare(&packet));
         let occluded = s.occluded8(&packet);
+        // The same rays as rows: the same packet, so the same hits.
+        let rows = Rays8::from_rays(&packet);
+        let (rows_bare, rows_occluded) = (s.any_hit8_soa_bare(&rows), s.occluded8_soa(&rows));
         for (i, r) in packet.iter().enumerate() {
             let what = format!("{what}: any hit, lane {i}: {r:?}");
+            assert_eq!(bare_bits(rows_bare[i]), bare_bits(bare[i]), "{what}: rows");
+            assert_eq!(rows_occluded[i], occluded[i], "{what}: rows");
             assert_eq!(full[i].is_some(), s.occluded(r), "{what}");
             assert_eq!(occluded[i], s.occluded(r), "{what}");
             assert_eq!(bare_bits(bare[i]), bare_of(full[i]), "{what}");
@@ -68,16 +74,27 @@ fn check_any<P: Primitives>(s: &Scene<P>, m: &TriangleMesh, rays: &[Ray], what: 
     }
 }
 
-/// Checks `intersect8_bare` against `intersect8` on each packet of `rays`.
+/// Checks `intersect8_bare` against `intersect8` on each packet of `rays`,
+/// and the forms that take the rays as rows (`intersect8_soa` and
+/// `intersect8_soa_bare`) against those.
 fn check_bare<P: Primitives>(s: &Scene<P>, rays: &[Ray], what: &str) {
     for chunk in rays.chunks(LANES) {
         let packet: [Ray; LANES] = std::array::from_fn(|i| chunk[i % chunk.len()]);
         let (bare, full) = (s.intersect8_bare(&packet), s.intersect8(&packet));
+        // The same rays as rows ([`Rays8`]).
+        let rows = Rays8::from_rays(&packet);
+        let (rows_bare, rows_full) = (s.intersect8_soa_bare(&rows), s.intersect8_soa(&rows));
         for i in 0..LANES {
             assert_eq!(
                 bare_bits(bare[i]),
                 bare_of(full[i]),
                 "{what}: bare, lane {i}"
+            );
+            assert_eq!(key(rows_full[i]), key(full[i]), "{what}: rows, lane {i}");
+            assert_eq!(
+                bare_bits(rows_bare[i]),
+                bare_bits(bare[i]),
+                "{what}: rows, bare, lane {i}"
             );
         }
     }

@@ -7,7 +7,7 @@
 //! types before the clock starts, and answers closest-hit queries with
 //! `(t, triangle index in the input)` and any-hit queries with a flag.
 
-use raymesh_accel::{AccelKind, BuildConfig, Scene, Surface, TriangleMesh, Triangles};
+use raymesh_accel::{AccelKind, BuildConfig, Rays8, Scene, Surface, TriangleMesh, Triangles};
 use raymesh_geometry::Vec3;
 use rayon::prelude::*;
 use rayon::ThreadPool;
@@ -212,11 +212,13 @@ impl Engine for Raymesh {
         // the normal it stores for each triangle as well.
         let ray = |r: &[f32; 8]| raymesh::workload::unpack_ray(*r);
         let hit = |h: Option<raymesh_accel::BareHit>| h.map(|h| (h.t, h.prim));
+        // Packets go in as rows (`Rays8`), as Embree's go in as its
+        // `RTCRay8`: the rays' constants made for the eight at once.
         if run.packets && any {
             return run.run8(
                 rays,
                 |p| {
-                    let o = self.scene.occluded8(&p.each_ref().map(ray));
+                    let o = self.scene.occluded8_soa(&rows8(p));
                     o.map(|o| o.then_some((0.0, 0)))
                 },
                 |r| self.scene.occluded(&ray(r)).then_some((0.0, 0)),
@@ -225,7 +227,7 @@ impl Engine for Raymesh {
         if run.packets {
             return run.run8(
                 rays,
-                |p| self.scene.intersect8_bare(&p.each_ref().map(ray)).map(hit),
+                |p| self.scene.intersect8_soa_bare(&rows8(p)).map(hit),
                 |r| hit(self.scene.intersect_bare(&ray(r))),
             );
         }
@@ -387,6 +389,17 @@ fn moller_trumbore(o: Vec3, d: Vec3, p: &[nalgebra::Point3<f32>; 3], tmin: f32, 
         t
     } else {
         f32::INFINITY
+    }
+}
+
+/// Eight rays of BENCH.md's layout (origin, `tmin`, direction, `tmax`)
+/// as rows.
+fn rows8(p: &[[f32; 8]; 8]) -> Rays8 {
+    Rays8 {
+        origin: std::array::from_fn(|a| std::array::from_fn(|i| p[i][a])),
+        dir: std::array::from_fn(|a| std::array::from_fn(|i| p[i][4 + a])),
+        tmin: std::array::from_fn(|i| p[i][3]),
+        tmax: std::array::from_fn(|i| p[i][7]),
     }
 }
 
