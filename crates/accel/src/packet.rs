@@ -116,26 +116,26 @@ impl<'a> Packet8<'a> {
         };
         Self::assemble(
             rays,
-            lanes(Ray::origin),
-            lanes(Ray::inv_dir),
-            lanes(|r| r.shear().0),
-            std::array::from_fn(|i| rays[i].tmin()),
+            &lanes(Ray::origin),
+            &lanes(Ray::inv_dir),
+            &lanes(|r| r.shear().0),
+            &std::array::from_fn(|i| rays[i].tmin()),
             k,
             rays[0].octant(),
         )
     }
 
-    /// The packet of rays made together ([`raymesh_geometry::Rays8::lanes`]): their rows
-    /// taken as they are, with no transposition and nothing checked again
-    /// (the same packet as [`Self::build`] of `lanes.rays`).
-    #[inline]
+    /// The packet of rays made together ([`raymesh_geometry::Rays8::lanes`]):
+    /// their rows taken as they are, with no transposition and nothing
+    /// checked again (the same packet as [`Self::build`] of `lanes.rays`).
+    #[inline(always)]
     pub(crate) fn from_lanes(lanes: &'a RayLanes8) -> Self {
         Self::assemble(
             &lanes.rays,
-            lanes.origin,
-            lanes.inv_dir,
-            lanes.shear,
-            lanes.tmin,
+            &lanes.origin,
+            &lanes.inv_dir,
+            &lanes.shear,
+            &lanes.tmin,
             lanes.k,
             lanes.octant,
         )
@@ -143,14 +143,14 @@ impl<'a> Packet8<'a> {
 
     /// The packet of `rays`, given by rows (each lane's origin, reciprocal
     /// direction, shear constants and `tmin`) with their shared axis order
-    /// and octant.
+    /// and octant. The rows by reference, copied once, into the packet.
     #[inline(always)]
     fn assemble(
         rays: &'a [Ray; LANES],
-        origin: [[f32; LANES]; 3],
-        inv_dir: [[f32; LANES]; 3],
-        shear: [[f32; LANES]; 3],
-        tmin: [f32; LANES],
+        origin: &[[f32; LANES]; 3],
+        inv_dir: &[[f32; LANES]; 3],
+        shear: &[[f32; LANES]; 3],
+        tmin: &[f32; LANES],
         k: [usize; 3],
         oct: usize,
     ) -> Self {
@@ -160,8 +160,8 @@ impl<'a> Packet8<'a> {
         // function's instructions). Origins are finite and reciprocals
         // never NaN, so the order of the comparisons does not change the
         // result.
-        let (o_lo, o_hi) = (row_min(&origin), row_max(&origin));
-        let (i_lo, i_hi) = (row_min(&inv_dir), row_max(&inv_dir));
+        let (o_lo, o_hi) = (row_min(origin), row_max(origin));
+        let (i_lo, i_hi) = (row_min(inv_dir), row_max(inv_dir));
         let finite = inv_dir.iter().all(|r| {
             let (a, b) = halves(r);
             (a.is_finite_mask() & b.is_finite_mask()).all()
@@ -173,18 +173,18 @@ impl<'a> Packet8<'a> {
             far_origin: std::array::from_fn(|a| if neg[a] { o_hi[a] } else { o_lo[a] }),
             inv: std::array::from_fn(|a| [i_lo[a], i_hi[a]]),
             inv_exit: std::array::from_fn(|a| [exit_reciprocal(i_lo[a]), exit_reciprocal(i_hi[a])]),
-            tmin: row_min(&[tmin])[0],
+            tmin: row_min(&[*tmin])[0],
         };
         Self {
             rays,
-            origin,
-            inv_dir,
+            origin: *origin,
+            inv_dir: *inv_dir,
             inv_exit: inv_dir.map(|row| row.map(exit_reciprocal)),
-            tmin,
+            tmin: *tmin,
             neg,
             k,
             porigin: [origin[k[0]], origin[k[1]], origin[k[2]]],
-            shear,
+            shear: *shear,
             frustum: finite.then_some(frustum),
         }
     }

@@ -681,39 +681,39 @@ impl<P: Primitives> Scene<P> {
     /// [`Self::intersect8`] of each lane's [`Rays8::ray`], with the rays'
     /// constants made for the eight lanes at once ([`Rays8::lanes`]).
     pub fn intersect8_soa(&self, rays: &Rays8) -> [Option<Hit>; LANES] {
-        let Some(lanes) = rays.lanes() else {
+        let Some(lanes) = &rays.lanes() else {
             return self.intersect8(&std::array::from_fn(|i| rays.ray(i)));
         };
-        let best = self.packet8_lanes::<false>(&lanes);
+        let best = self.packet8_lanes::<false>(lanes);
         std::array::from_fn(|i| best[i].map(|(prim, h)| self.hit(prim, &lanes.rays[i], h)))
     }
 
     /// [`Self::intersect8_soa`] without the normals: the same hits.
     pub fn intersect8_soa_bare(&self, rays: &Rays8) -> [Option<BareHit>; LANES] {
-        let Some(lanes) = rays.lanes() else {
+        let Some(lanes) = &rays.lanes() else {
             return self.intersect8_bare(&std::array::from_fn(|i| rays.ray(i)));
         };
-        self.packet8_lanes::<false>(&lanes)
+        self.packet8_lanes::<false>(lanes)
             .map(|b| b.map(|(prim, h)| self.bare(prim, h)))
     }
 
     /// [`Self::any_hit8_bare`] of eight rays given as rows ([`Rays8`]), as
     /// [`Self::intersect8_soa`].
     pub fn any_hit8_soa_bare(&self, rays: &Rays8) -> [Option<BareHit>; LANES] {
-        let Some(lanes) = rays.lanes() else {
+        let Some(lanes) = &rays.lanes() else {
             return self.any_hit8_bare(&std::array::from_fn(|i| rays.ray(i)));
         };
-        self.packet8_lanes::<true>(&lanes)
+        self.packet8_lanes::<true>(lanes)
             .map(|b| b.map(|(prim, h)| self.bare(prim, h)))
     }
 
     /// [`Self::occluded8`] of eight rays given as rows ([`Rays8`]), as
     /// [`Self::intersect8_soa`].
     pub fn occluded8_soa(&self, rays: &Rays8) -> [bool; LANES] {
-        let Some(lanes) = rays.lanes() else {
+        let Some(lanes) = &rays.lanes() else {
             return self.occluded8(&std::array::from_fn(|i| rays.ray(i)));
         };
-        self.packet8_lanes::<true>(&lanes).map(|f| f.is_some())
+        self.packet8_lanes::<true>(lanes).map(|f| f.is_some())
     }
 
     /// The primitives (in storage order) and hits of [`Self::intersect8`],

@@ -254,12 +254,18 @@ impl Rays8 {
     /// rows and the three shear rows, whose divisions are the IEEE
     /// quotients [`Ray::new`]'s give lane by lane. With one axis order the
     /// shear's numerators are whole rows, not a choice a lane.
-    #[inline]
+    #[inline(always)]
     #[must_use]
     pub fn lanes(&self) -> Option<RayLanes8> {
         let (o, d) = (&self.origin, &self.dir);
-        let abs = d.map(|row| row.map(f32::abs));
-        // Lane 0's dominant axis and octant, which every lane must share.
+        // Plain loops over the rows (`array::map` here stayed calls).
+        let mut abs = [[0.0f32; 8]; 3];
+        for a in 0..3 {
+            for i in 0..8 {
+                abs[a][i] = d[a][i].abs();
+            }
+        }
+        // Each lane's dominant axis and octant, which must be lane 0's.
         let dom = |i: usize| -> usize {
             if (abs[0][i] >= abs[1][i]) & (abs[0][i] >= abs[2][i]) {
                 0
@@ -267,13 +273,20 @@ impl Rays8 {
                 2 - usize::from(abs[1][i] >= abs[2][i])
             }
         };
-        let kz = dom(0);
-        let sign =
-            |i: usize| (0..3).fold(0, |m, a| m | usize::from(d[a][i].is_sign_negative()) << a);
-        let octant = sign(0);
+        let sign = |i: usize| {
+            usize::from(d[0][i].is_sign_negative())
+                | usize::from(d[1][i].is_sign_negative()) << 1
+                | usize::from(d[2][i].is_sign_negative()) << 2
+        };
+        let (kz, octant) = (dom(0), sign(0));
         let mut ok = true;
         for i in 0..8 {
-            let finite = (0..3).all(|a| o[a][i].is_finite() & d[a][i].is_finite());
+            let finite = o[0][i].is_finite()
+                & o[1][i].is_finite()
+                & o[2][i].is_finite()
+                & d[0][i].is_finite()
+                & d[1][i].is_finite()
+                & d[2][i].is_finite();
             let nonzero = (d[0][i] != 0.0) | (d[1][i] != 0.0) | (d[2][i] != 0.0);
             ok &= finite & nonzero & (self.tmin[i] <= self.tmax[i]);
             ok &= (dom(i) == kz) & (sign(i) == octant);
@@ -288,14 +301,20 @@ impl Rays8 {
         const KY: [[u8; 3]; 2] = [[2, 0, 1], [1, 2, 0]];
         let neg = octant >> kz & 1;
         let k = [KX[neg][kz] as usize, KY[neg][kz] as usize, kz];
-        let inv_dir = d.map(|row| row.map(|x| 1.0 / x));
-        let dz = &d[kz];
-        let shear = [
-            std::array::from_fn(|i| d[k[0]][i] / dz[i]),
-            std::array::from_fn(|i| d[k[1]][i] / dz[i]),
-            std::array::from_fn(|i| 1.0 / dz[i]),
-        ];
-        let k8 = k.map(|a| a as u8);
+        let mut inv_dir = [[0.0f32; 8]; 3];
+        for a in 0..3 {
+            for i in 0..8 {
+                inv_dir[a][i] = 1.0 / d[a][i];
+            }
+        }
+        let (dx, dy, dz) = (&d[k[0]], &d[k[1]], &d[kz]);
+        let mut shear = [[0.0f32; 8]; 3];
+        for i in 0..8 {
+            shear[0][i] = dx[i] / dz[i];
+            shear[1][i] = dy[i] / dz[i];
+            shear[2][i] = 1.0 / dz[i];
+        }
+        let k8 = [k[0] as u8, k[1] as u8, kz as u8];
         let rays = std::array::from_fn(|i| Ray {
             origin: Vec3::new(o[0][i], o[1][i], o[2][i]),
             dir: Vec3::new(d[0][i], d[1][i], d[2][i]),
