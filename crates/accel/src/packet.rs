@@ -21,8 +21,9 @@
 use crate::{BlockHits, PrimHit};
 use raymesh_geometry::{
     exit_reciprocal, intersect_triangle, max_nan_second as max_ns, min_nan_second as min_ns, Ray,
-    RayLanes8, Vec3, Vec4,
+    RayLanes8, Rays8, Vec3, Vec4,
 };
+use std::cell::OnceCell;
 
 /// Rays in a packet: one per SIMD lane of AVX.
 pub const LANES: usize = 8;
@@ -32,9 +33,11 @@ pub const LANES: usize = 8;
 /// direction's octant and dominant axis (see [`Packet8::new`]).
 #[derive(Clone, Debug)]
 pub struct Packet8<'a> {
-    /// The rays, for the lanes that need the scalar test's f64 path:
-    /// borrowed, not copied (a copy was 480 bytes moved a packet).
-    pub(crate) rays: &'a [Ray; LANES],
+    /// Where the lanes' rays come from, for the tests that need a lane's
+    /// `Ray` (the scalar test's f64 path, primitives with no packet test).
+    source: Source<'a>,
+    /// Upper ends of the intervals, as given.
+    tmax: [f32; LANES],
     /// Origins by axis.
     origin: [[f32; LANES]; 3],
     /// Reciprocal directions by axis.
@@ -51,9 +54,25 @@ pub struct Packet8<'a> {
     pub(crate) porigin: [[f32; LANES]; 3],
     /// Shear constants of each lane (see [`Ray::shear`]).
     pub(crate) shear: [[f32; LANES]; 3],
+    /// The triangle block kernel's row offsets for the axis order `k`
+    /// (every lane's: see [`crate::BlockRay`]).
+    pub(crate) block_rows: [usize; 9],
     /// The packet's bounds for [`frustum`], when every lane's reciprocal
     /// direction is finite.
     pub(crate) frustum: Option<Frustum>,
+}
+
+/// The rays of a packet: borrowed as they were given, not copied (a copy
+/// was 480 bytes moved a packet), or, for rays given as rows, made from
+/// them the first time a test asks for one (most packets of triangles
+/// never do: the leaf kernels take the rows).
+/// (The larger variant stays inline: a packet lives on the stack for one
+/// query, where a `Box` would be an allocation a packet.)
+#[derive(Clone, Debug)]
+#[allow(clippy::large_enum_variant)]
+enum Source<'a> {
+    Rays(&'a [Ray; LANES]),
+    Rows(&'a Rays8, OnceCell<[Ray; LANES]>),
 }
 
 /// What the interval slab test of a whole packet needs, per axis: the
@@ -115,7 +134,8 @@ impl<'a> Packet8<'a> {
             std::array::from_fn(|a| std::array::from_fn(|i| v[i][a]))
         };
         Self::assemble(
-            rays,
+            Source::Rays(rays),
+            &std::array::from_fn(|i| rays[i].tmax()),
             &lanes(Ray::origin),
             &lanes(Ray::inv_dir),
             &lanes(|r| r.shear().0),
@@ -125,13 +145,15 @@ impl<'a> Packet8<'a> {
         )
     }
 
-    /// The packet of rays made together ([`raymesh_geometry::Rays8::lanes`]):
-    /// their rows taken as they are, with no transposition and nothing
-    /// checked again (the same packet as [`Self::build`] of `lanes.rays`).
+    /// The packet of `rays`, whose rows `lanes` are
+    /// ([`raymesh_geometry::Rays8::lanes`]): taken as they are, with no
+    /// transposition and nothing checked again (the same packet as
+    /// [`Self::build`] of each lane's [`Rays8::ray`]).
     #[inline(always)]
-    pub(crate) fn from_lanes(lanes: &'a RayLanes8) -> Self {
+    pub(crate) fn from_lanes(rays: &'a Rays8, lanes: &RayLanes8) -> Self {
         Self::assemble(
-            &lanes.rays,
+            Source::Rows(rays, OnceCell::new()),
+            &rays.tmax,
             &lanes.origin,
             &lanes.inv_dir,
             &lanes.shear,
@@ -145,8 +167,10 @@ impl<'a> Packet8<'a> {
     /// direction, shear constants and `tmin`) with their shared axis order
     /// and octant. The rows by reference, copied once, into the packet.
     #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
     fn assemble(
-        rays: &'a [Ray; LANES],
+        source: Source<'a>,
+        tmax: &[f32; LANES],
         origin: &[[f32; LANES]; 3],
         inv_dir: &[[f32; LANES]; 3],
         shear: &[[f32; LANES]; 3],
@@ -176,7 +200,8 @@ impl<'a> Packet8<'a> {
             tmin: row_min(&[*tmin])[0],
         };
         Self {
-            rays,
+            source,
+            tmax: *tmax,
             origin: *origin,
             inv_dir: *inv_dir,
             inv_exit: inv_dir.map(|row| row.map(exit_reciprocal)),
@@ -185,6 +210,7 @@ impl<'a> Packet8<'a> {
             k,
             porigin: [origin[k[0]], origin[k[1]], origin[k[2]]],
             shear: *shear,
+            block_rows: crate::simd::kernel_rows(k),
             frustum: finite.then_some(frustum),
         }
     }
@@ -225,7 +251,22 @@ impl Packet8<'_> {
     /// Lane `k`'s ray.
     #[must_use]
     pub fn ray(&self, k: usize) -> &Ray {
-        &self.rays[k]
+        &self.rays()[k]
+    }
+
+    /// The lanes' rays (for rays given as rows, made on the first call).
+    #[must_use]
+    pub(crate) fn rays(&self) -> &[Ray; LANES] {
+        match &self.source {
+            Source::Rays(r) => r,
+            Source::Rows(rows, made) => made.get_or_init(|| std::array::from_fn(|i| rows.ray(i))),
+        }
+    }
+
+    /// Each lane's upper bound, as given.
+    #[must_use]
+    pub(crate) fn tmax(&self) -> [f32; LANES] {
+        self.tmax
     }
 }
 
@@ -464,7 +505,7 @@ pub(crate) fn triangle_lanes(
         let i = m.trailing_zeros() as usize;
         m &= m - 1;
         let [a, b, cc] = corners;
-        if let Some(h) = intersect_triangle(&p.rays[i], tmax[i], a, b, cc) {
+        if let Some(h) = intersect_triangle(p.ray(i), tmax[i], a, b, cc) {
             out[i] = PrimHit {
                 t: h.t,
                 u: h.u,

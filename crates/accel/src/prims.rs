@@ -119,6 +119,33 @@ pub trait Primitives: Send + Sync {
         let _ = (avx, pre);
         self.intersect_block(first, count, ray, tmax)
     }
+    /// [`Self::block_ray`] of lane `i` of the packet `p`. Triangles make
+    /// it from the packet's rows, with no `Ray` of the lane made; the
+    /// default asks the packet for the lane's ray.
+    #[inline(always)]
+    fn block_ray_lane(&self, p: &Packet8, i: usize) -> BlockRay {
+        self.block_ray(p.ray(i))
+    }
+    /// [`Self::intersect_block_pre`] of lane `i` of the packet `p`, with
+    /// `pre` = [`Self::block_ray_lane`] of it: the same results.
+    /// Triangles ask the packet for the lane's `Ray` only where the block
+    /// kernel leaves lanes for the scalar test to redo (see `redo_lanes`;
+    /// the AVX2 kernel redoes its own, so on x86-64 never); the default
+    /// asks every time.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn intersect_block_lane(
+        &self,
+        avx: Avx2,
+        pre: &BlockRay,
+        first: u32,
+        count: u32,
+        p: &Packet8,
+        i: usize,
+        tmax: f32,
+    ) -> (u32, BlockHits) {
+        self.intersect_block_pre(avx, pre, first, count, p.ray(i), tmax)
+    }
     /// Tests primitives `ids` (at most [`BLOCK`]; lane `k` is primitive
     /// `ids[k]`) as [`Self::intersect_block`] tests consecutive ones: the
     /// k-d tree's leaves and the grid's cells name their primitives by
@@ -540,6 +567,38 @@ impl Primitives for Triangles {
         }
     }
     #[inline(always)]
+    fn block_ray_lane(&self, p: &Packet8, i: usize) -> BlockRay {
+        BlockRay::lane(p, i)
+    }
+    #[inline(always)]
+    fn intersect_block_lane(
+        &self,
+        avx: Avx2,
+        pre: &BlockRay,
+        first: u32,
+        count: u32,
+        p: &Packet8,
+        i: usize,
+        tmax: f32,
+    ) -> (u32, BlockHits) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            let count = (count as usize).min(BLOCK);
+            let first = first as usize;
+            assert!(first + count <= self.len);
+            let block = crate::simd::triangles8_pre(avx, &self.data, first, count, pre, tmax);
+            if block.1 == 0 {
+                return (block.0, block.2);
+            }
+            redo_lanes(self, |k| (first + k) as u32, block, p.ray(i), tmax)
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            let _ = (avx, pre);
+            self.intersect_block(first, count, p.ray(i), tmax)
+        }
+    }
+    #[inline(always)]
     fn intersect_ids(&self, ids: &[u32], ray: &Ray, tmax: f32) -> (u32, BlockHits) {
         let ids = &ids[..ids.len().min(BLOCK)];
         #[cfg(target_arch = "x86_64")]
@@ -752,6 +811,23 @@ impl<P: Primitives + ?Sized> Primitives for &P {
         tmax: f32,
     ) -> (u32, BlockHits) {
         (**self).intersect_block_pre(avx, pre, first, count, ray, tmax)
+    }
+    #[inline(always)]
+    fn block_ray_lane(&self, p: &Packet8, i: usize) -> BlockRay {
+        (**self).block_ray_lane(p, i)
+    }
+    #[inline(always)]
+    fn intersect_block_lane(
+        &self,
+        avx: Avx2,
+        pre: &BlockRay,
+        first: u32,
+        count: u32,
+        p: &Packet8,
+        i: usize,
+        tmax: f32,
+    ) -> (u32, BlockHits) {
+        (**self).intersect_block_lane(avx, pre, first, count, p, i, tmax)
     }
     #[inline(always)]
     fn intersect_ids(&self, ids: &[u32], ray: &Ray, tmax: f32) -> (u32, BlockHits) {

@@ -7,7 +7,7 @@ use crate::{
     Accel, AccelKind, AccelStats, Avx2, BlockHits, BuildConfig, Bvh, Bvh4, Bvh8, CountStats, Grid,
     NoStats, PrimHit, Primitives, RayCounter, TriangleMesh, Triangles,
 };
-use raymesh_geometry::{Aabb, Ray, RayLanes8, Rays8, Vec3};
+use raymesh_geometry::{Aabb, Ray, Rays8, Vec3};
 use rayon::prelude::*;
 use std::time::Instant;
 
@@ -681,39 +681,27 @@ impl<P: Primitives> Scene<P> {
     /// [`Self::intersect8`] of each lane's [`Rays8::ray`], with the rays'
     /// constants made for the eight lanes at once ([`Rays8::lanes`]).
     pub fn intersect8_soa(&self, rays: &Rays8) -> [Option<Hit>; LANES] {
-        let Some(lanes) = &rays.lanes() else {
-            return self.intersect8(&std::array::from_fn(|i| rays.ray(i)));
-        };
-        let best = self.packet8_lanes::<false>(lanes);
-        std::array::from_fn(|i| best[i].map(|(prim, h)| self.hit(prim, &lanes.rays[i], h)))
+        let best = self.packet8_soa::<false>(rays);
+        std::array::from_fn(|i| best[i].map(|(prim, h)| self.hit(prim, &rays.ray(i), h)))
     }
 
     /// [`Self::intersect8_soa`] without the normals: the same hits.
     pub fn intersect8_soa_bare(&self, rays: &Rays8) -> [Option<BareHit>; LANES] {
-        let Some(lanes) = &rays.lanes() else {
-            return self.intersect8_bare(&std::array::from_fn(|i| rays.ray(i)));
-        };
-        self.packet8_lanes::<false>(lanes)
+        self.packet8_soa::<false>(rays)
             .map(|b| b.map(|(prim, h)| self.bare(prim, h)))
     }
 
     /// [`Self::any_hit8_bare`] of eight rays given as rows ([`Rays8`]), as
     /// [`Self::intersect8_soa`].
     pub fn any_hit8_soa_bare(&self, rays: &Rays8) -> [Option<BareHit>; LANES] {
-        let Some(lanes) = &rays.lanes() else {
-            return self.any_hit8_bare(&std::array::from_fn(|i| rays.ray(i)));
-        };
-        self.packet8_lanes::<true>(lanes)
+        self.packet8_soa::<true>(rays)
             .map(|b| b.map(|(prim, h)| self.bare(prim, h)))
     }
 
     /// [`Self::occluded8`] of eight rays given as rows ([`Rays8`]), as
     /// [`Self::intersect8_soa`].
     pub fn occluded8_soa(&self, rays: &Rays8) -> [bool; LANES] {
-        let Some(lanes) = &rays.lanes() else {
-            return self.occluded8(&std::array::from_fn(|i| rays.ray(i)));
-        };
-        self.packet8_lanes::<true>(lanes).map(|f| f.is_some())
+        self.packet8_soa::<true>(rays).map(|f| f.is_some())
     }
 
     /// The primitives (in storage order) and hits of [`Self::intersect8`],
@@ -726,12 +714,16 @@ impl<P: Primitives> Scene<P> {
         self.walk_packet::<ANY>(wide, &Packet8::build(rays))
     }
 
-    /// [`Self::packet8`] of rays made together ([`Rays8::lanes`]).
-    fn packet8_lanes<const ANY: bool>(&self, lanes: &RayLanes8) -> [Option<(u32, PrimHit)>; LANES] {
-        let Some(wide) = self.wide_blocks() else {
-            return self.one_by_one::<ANY>(&lanes.rays);
-        };
-        self.walk_packet::<ANY>(wide, &Packet8::from_lanes(lanes))
+    /// [`Self::packet8`] of rays given as rows: a packet made from the
+    /// rows ([`Rays8::lanes`]) when they make one, else each lane's
+    /// [`Rays8::ray`] alone.
+    fn packet8_soa<const ANY: bool>(&self, rays: &Rays8) -> [Option<(u32, PrimHit)>; LANES] {
+        if let Some(wide) = self.wide_blocks() {
+            if let Some(lanes) = &rays.lanes() {
+                return self.walk_packet::<ANY>(wide, &Packet8::from_lanes(rays, lanes));
+            }
+        }
+        self.one_by_one::<ANY>(&std::array::from_fn(|i| rays.ray(i)))
     }
 
     /// [`Self::packet8`] of rays that make no packet: each ray alone.
@@ -752,9 +744,8 @@ impl<P: Primitives> Scene<P> {
         wide: WideRef<'_>,
         p: &Packet8,
     ) -> [Option<(u32, PrimHit)>; LANES] {
-        let rays = p.rays;
         let mut best: [Option<(u32, PrimHit)>; LANES] = [None; LANES];
-        let mut tmax: [f32; LANES] = std::array::from_fn(|i| rays[i].tmax());
+        let mut tmax: [f32; LANES] = p.tmax();
         // Any hit: a lane that has one is done, its bound set to -inf,
         // which every later box and triangle test of the lane fails.
         let mut leaf = |first: u32, count: u32, lanes: u32, tmax: &mut [f32; LANES]| {
@@ -774,23 +765,25 @@ impl<P: Primitives> Scene<P> {
                 if let Some(avx) = Avx2::detect() {
                     avx.run(|| {
                         self.leaf_lanes::<ANY, _>(
-                            rays,
+                            p,
                             (first, count, lanes),
                             tmax,
                             &mut best,
-                            |r| self.prims.block_ray(r),
-                            |r, pre, s, n, t| self.prims.intersect_block_pre(avx, pre, s, n, r, t),
+                            |i| self.prims.block_ray_lane(p, i),
+                            |i, pre, s, n, t| {
+                                self.prims.intersect_block_lane(avx, pre, s, n, p, i, t)
+                            },
                         );
                     });
                     return;
                 }
                 self.leaf_lanes::<ANY, _>(
-                    rays,
+                    p,
                     (first, count, lanes),
                     tmax,
                     &mut best,
                     |_| (),
-                    |r, (), s, n, t| self.prims.intersect_block(s, n, r, t),
+                    |i, (), s, n, t| self.prims.intersect_block(s, n, p.ray(i), t),
                 );
                 return;
             }
@@ -819,30 +812,30 @@ impl<P: Primitives> Scene<P> {
     }
 
     /// A packet's leaf (`first..first + count`) tested lane by lane for
-    /// the lanes in `lanes`, as each ray alone would: each lane's block
-    /// test is `test(ray, &pre(ray), first, count, tmax)`, with `pre` the
-    /// ray's constants for it (made once a lane). Closest hits lower the
-    /// lane's `tmax`; with `ANY`, a lane's first hit ends it (`tmax` to
+    /// the lanes in `lanes` of `p`, as each ray alone would: lane `i`'s
+    /// block test is `test(i, &pre(i), first, count, tmax)`, with `pre(i)`
+    /// the lane's constants for it (made once a lane). Closest hits lower
+    /// the lane's `tmax`; with `ANY`, a lane's first hit ends it (`tmax` to
     /// `-inf`).
     #[inline(always)]
     fn leaf_lanes<const ANY: bool, R>(
         &self,
-        rays: &[Ray; LANES],
+        p: &Packet8,
         (first, count, lanes): (u32, u32, u32),
         tmax: &mut [f32; LANES],
         best: &mut [Option<(u32, PrimHit)>; LANES],
-        pre: impl Fn(&Ray) -> R,
-        test: impl Fn(&Ray, &R, u32, u32, f32) -> (u32, BlockHits),
+        pre: impl Fn(usize) -> R,
+        test: impl Fn(usize, &R, u32, u32, f32) -> (u32, BlockHits),
     ) {
         let mut m = lanes;
         while m != 0 {
             let i = m.trailing_zeros() as usize;
             m &= m - 1;
-            let (ray, pre) = (&rays[i], pre(&rays[i]));
-            let test = |s, n, t| test(ray, &pre, s, n, t);
+            let pre = pre(i);
+            let test = |s, n, t| test(i, &pre, s, n, t);
             if !ANY {
                 self.leaf_closest_by(first, count, &mut tmax[i], &mut best[i], test);
-            } else if let Some(f) = self.leaf_any_by(first, count, ray.tmax(), test) {
+            } else if let Some(f) = self.leaf_any_by(first, count, p.tmax()[i], test) {
                 best[i] = Some(f);
                 tmax[i] = f32::NEG_INFINITY;
             }

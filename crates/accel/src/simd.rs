@@ -903,6 +903,26 @@ impl BlockRay {
     }
 }
 
+impl BlockRay {
+    /// [`Self::new`] of lane `i` of the packet `p`, from its rows: the same
+    /// constants, with no `Ray` of the lane made.
+    #[inline(always)]
+    pub(crate) fn lane(p: &crate::Packet8, i: usize) -> Self {
+        Self {
+            shear: [p.shear[0][i], p.shear[1][i], p.shear[2][i]],
+            origin: [p.porigin[0][i], p.porigin[1][i], p.porigin[2][i]],
+            tmin: p.tmin[i],
+            rows: p.block_rows,
+        }
+    }
+}
+
+/// The rows [`BlockRay::new`] gives a ray of axis order `k`.
+#[inline(always)]
+pub(crate) fn kernel_rows(k: [usize; 3]) -> [usize; 9] {
+    std::array::from_fn(|r| kernel_row(r, k))
+}
+
 /// The offset in a group of the row the kernel reads as its row `r`
 /// (corner `r / 3`, axis `k[r % 3]` of the ray's permutation): at most
 /// 64, row 8's.

@@ -202,14 +202,14 @@ pub struct Rays8 {
     pub tmax: [f32; 8],
 }
 
-/// The eight rays of a [`Rays8`] whose directions share their octant and
-/// dominant axis, made at once: each lane's [`Ray`] (bit for bit what
-/// [`Ray::new`] makes of it), and by rows the reciprocal directions and
-/// shear constants that packet traversals test with.
+/// What [`Ray::new`] computes of each of the eight rays of a [`Rays8`]
+/// whose directions share their octant and dominant axis, by rows: the
+/// reciprocal directions and shear constants that packet traversals test
+/// with (each lane's bit for bit), and the shared axis order and octant.
+/// No `Ray` is made: a traversal that needs one of a lane (a rare case of
+/// the triangle test) makes it with [`Rays8::ray`].
 #[derive(Clone, Debug)]
 pub struct RayLanes8 {
-    /// Each lane's ray.
-    pub rays: [Ray; 8],
     /// Origins by axis (the input's).
     pub origin: [[f32; 8]; 3],
     /// Reciprocal directions by axis (each lane's [`Ray::inv_dir`]).
@@ -244,8 +244,8 @@ impl Rays8 {
         Ray::new(o, d, self.tmin[i], self.tmax[i])
     }
 
-    /// The eight rays ([`Self::ray`] of each lane), when every one is
-    /// valid and all share their direction's octant and axis order (the
+    /// What [`Self::ray`] of each lane computes, by rows, when every ray
+    /// is valid and all share their direction's octant and axis order (the
     /// rays of a packet: a camera's neighbouring pixels, shadow rays toward
     /// one light); else `None`, and the caller makes them one by one.
     ///
@@ -314,18 +314,7 @@ impl Rays8 {
             shear[1][i] = dy[i] / dz[i];
             shear[2][i] = 1.0 / dz[i];
         }
-        let k8 = [k[0] as u8, k[1] as u8, kz as u8];
-        let rays = std::array::from_fn(|i| Ray {
-            origin: Vec3::new(o[0][i], o[1][i], o[2][i]),
-            dir: Vec3::new(d[0][i], d[1][i], d[2][i]),
-            inv_dir: Vec3::new(inv_dir[0][i], inv_dir[1][i], inv_dir[2][i]),
-            tmin: self.tmin[i],
-            tmax: self.tmax[i],
-            shear: Vec3::new(shear[0][i], shear[1][i], shear[2][i]),
-            k: k8,
-        });
         Some(RayLanes8 {
-            rays,
             origin: *o,
             inv_dir,
             shear,
@@ -446,7 +435,7 @@ mod tests {
         }
     }
 
-    /// `Rays8::lanes` makes each lane's `Ray::new` bit for bit, and
+    /// `Rays8::lanes` makes the rows of each lane's `Ray::new` bit for bit, and
     /// declines exactly the packets with an invalid ray or two lanes of
     /// another octant or axis order: over packets of near-parallel rays
     /// (most coherent) with hard values mixed in.
@@ -482,7 +471,6 @@ mod tests {
                     assert!(coherent, "{p:?}");
                     made += 1;
                     for (i, r) in rays.iter().enumerate() {
-                        assert_eq!(bits(&l.rays[i]), bits(r), "lane {i} of {p:?}");
                         for a in 0..3 {
                             assert_eq!(l.inv_dir[a][i].to_bits(), r.inv_dir[a].to_bits());
                             assert_eq!(l.shear[a][i].to_bits(), r.shear[a].to_bits());
