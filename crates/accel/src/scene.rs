@@ -656,9 +656,9 @@ impl<P: Primitives> Scene<P> {
     /// one, and then a hit of that ray within its interval, though not
     /// necessarily the one [`Self::any_hit`] finds first (the packet
     /// visits the nodes in another order). Coherent rays walk a BVH
-    /// together as a [`Packet8`], nearest child first, and each lane
-    /// drops out at its first hit; other rays, and other structures, are
-    /// traced one by one.
+    /// together as a [`Packet8`] (a wide BVH's children in slot order, a
+    /// binary one's nearest first), and each lane drops out at its first
+    /// hit; other rays, and other structures, are traced one by one.
     pub fn any_hit8(&self, rays: &[Ray; LANES]) -> [Option<Hit>; LANES] {
         let found = self.packet8::<true>(rays);
         std::array::from_fn(|i| found[i].map(|(prim, h)| self.hit(prim, &rays[i], h)))
@@ -804,8 +804,10 @@ impl<P: Primitives> Scene<P> {
             );
         };
         match wide {
-            WideRef::W4(b) => b.traverse_packet(p, &mut tmax, &mut leaf),
-            WideRef::W8(b) => b.traverse_packet(p, &mut tmax, &mut leaf),
+            WideRef::W4(b) if ANY => b.traverse_packet::<false>(p, &mut tmax, &mut leaf),
+            WideRef::W4(b) => b.traverse_packet::<true>(p, &mut tmax, &mut leaf),
+            WideRef::W8(b) if ANY => b.traverse_packet::<false>(p, &mut tmax, &mut leaf),
+            WideRef::W8(b) => b.traverse_packet::<true>(p, &mut tmax, &mut leaf),
             WideRef::W2(b) => b.traverse_packet(p, &mut tmax, &mut leaf),
         }
         best

@@ -784,9 +784,13 @@ impl<const W: usize> WideBvh<W> {
     /// distance among their lanes), each with the lanes that enter it; a
     /// lane drops out of a subtree when its entry lies beyond its own
     /// `tmax`. Each leaf reached calls `leaf(first, count, lanes, tmax)`,
-    /// which tests the lanes in `lanes` and lowers their `tmax`.
+    /// which tests the lanes in `lanes` and lowers their `tmax`. Without
+    /// `ORDERED` (any-hit queries, which stop a lane at its first hit
+    /// wherever it lies) the children go in slot order, unsorted, as the
+    /// one-ray any-hit walk's do (`raymesh-peers --packets`, any hits:
+    /// bunny00 primary +2%, shadow +4%, the pig +2% and +7%).
     #[inline]
-    pub(crate) fn traverse_packet(
+    pub(crate) fn traverse_packet<const ORDERED: bool>(
         &self,
         p: &Packet8,
         tmax: &mut [f32; LANES],
@@ -798,7 +802,7 @@ impl<const W: usize> WideBvh<W> {
         #[cfg(target_arch = "x86_64")]
         if let Some(avx) = simd::Avx2::detect() {
             return simd::with_avx2(|| {
-                self.packet_loop(
+                self.packet_loop::<ORDERED>(
                     p,
                     tmax,
                     leaf,
@@ -813,7 +817,7 @@ impl<const W: usize> WideBvh<W> {
         let le = |a: &[f32; LANES], b: &[f32; LANES]| {
             packet::lane_mask(&std::array::from_fn(|i| a[i] <= b[i]))
         };
-        self.packet_loop(p, tmax, leaf, test, le);
+        self.packet_loop::<ORDERED>(p, tmax, leaf, test, le);
     }
 
     /// The packet walk, generic over each child's test of the packet's
@@ -822,7 +826,7 @@ impl<const W: usize> WideBvh<W> {
     /// with bounds (`le`, as [`packet::le_mask`]), so that the AVX2 walk
     /// makes no CPU check per child or step.
     #[inline(always)]
-    fn packet_loop(
+    fn packet_loop<const ORDERED: bool>(
         &self,
         p: &Packet8,
         tmax: &mut [f32; LANES],
@@ -886,7 +890,7 @@ impl<const W: usize> WideBvh<W> {
                             entry,
                         };
                         let mut j = h;
-                        while j > 0 && hits[j - 1].0 < key {
+                        while ORDERED && j > 0 && hits[j - 1].0 < key {
                             hits[j] = hits[j - 1];
                             j -= 1;
                         }
