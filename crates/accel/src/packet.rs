@@ -265,8 +265,8 @@ impl Packet8<'_> {
 
     /// Each lane's upper bound, as given.
     #[must_use]
-    pub(crate) fn tmax(&self) -> [f32; LANES] {
-        self.tmax
+    pub(crate) fn tmax(&self) -> &[f32; LANES] {
+        &self.tmax
     }
 }
 

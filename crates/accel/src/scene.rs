@@ -745,7 +745,7 @@ impl<P: Primitives> Scene<P> {
         p: &Packet8,
     ) -> [Option<(u32, PrimHit)>; LANES] {
         let mut best: [Option<(u32, PrimHit)>; LANES] = [None; LANES];
-        let mut tmax: [f32; LANES] = p.tmax();
+        let mut tmax: [f32; LANES] = *p.tmax();
         // Any hit: a lane that has one is done, its bound set to -inf,
         // which every later box and triangle test of the lane fails.
         let mut leaf = |first: u32, count: u32, lanes: u32, tmax: &mut [f32; LANES]| {

@@ -1,6 +1,6 @@
 //! Rays with the per-ray values every traversal needs, computed once.
 
-use glam::{Vec3, Vec3A};
+use glam::{Vec3, Vec3A, Vec4};
 
 /// A ray `origin + t * dir` restricted to `t` in `[tmin, tmax]`.
 ///
@@ -258,38 +258,48 @@ impl Rays8 {
     #[must_use]
     pub fn lanes(&self) -> Option<RayLanes8> {
         let (o, d) = (&self.origin, &self.dir);
-        // Plain loops over the rows (`array::map` here stayed calls).
-        let mut abs = [[0.0f32; 8]; 3];
-        for a in 0..3 {
-            for i in 0..8 {
-                abs[a][i] = d[a][i].abs();
-            }
-        }
-        // Each lane's dominant axis and octant, which must be lane 0's.
-        let dom = |i: usize| -> usize {
-            if (abs[0][i] >= abs[1][i]) & (abs[0][i] >= abs[2][i]) {
+        // Lane 0's dominant axis and octant, which every lane must share.
+        let dom0 = |i: usize| -> usize {
+            let (x, y, z) = (d[0][i].abs(), d[1][i].abs(), d[2][i].abs());
+            if (x >= y) & (x >= z) {
                 0
             } else {
-                2 - usize::from(abs[1][i] >= abs[2][i])
+                2 - usize::from(y >= z)
             }
         };
-        let sign = |i: usize| {
-            usize::from(d[0][i].is_sign_negative())
-                | usize::from(d[1][i].is_sign_negative()) << 1
-                | usize::from(d[2][i].is_sign_negative()) << 2
-        };
-        let (kz, octant) = (dom(0), sign(0));
+        let kz = dom0(0);
+        let octant = usize::from(d[0][0].is_sign_negative())
+            | usize::from(d[1][0].is_sign_negative()) << 1
+            | usize::from(d[2][0].is_sign_negative()) << 2;
+        // What lane 0's axis means for every lane's comparisons: `x`
+        // dominant exactly when it is lane 0's, and else `y >= z` exactly
+        // when `y` is lane 0's. Checked four lanes at a time (glam's
+        // `Vec4`: SSE2 or NEON), each condition a mask.
         let mut ok = true;
-        for i in 0..8 {
-            let finite = o[0][i].is_finite()
-                & o[1][i].is_finite()
-                & o[2][i].is_finite()
-                & d[0][i].is_finite()
-                & d[1][i].is_finite()
-                & d[2][i].is_finite();
-            let nonzero = (d[0][i] != 0.0) | (d[1][i] != 0.0) | (d[2][i] != 0.0);
-            ok &= finite & nonzero & (self.tmin[i] <= self.tmax[i]);
-            ok &= (dom(i) == kz) & (sign(i) == octant);
+        for h in [0, 4] {
+            let row = |r: &[f32; 8]| Vec4::from_slice(&r[h..h + 4]);
+            let (x, y, z) = (row(&d[0]).abs(), row(&d[1]).abs(), row(&d[2]).abs());
+            let xd = x.cmpge(y) & x.cmpge(z);
+            let yz = y.cmpge(z);
+            ok &= match kz {
+                0 => xd.all(),
+                1 => !xd.any() & yz.all(),
+                _ => !xd.any() & !yz.any(),
+            };
+            // Every lane's sign bits those of lane 0.
+            for (a, r) in d.iter().enumerate() {
+                let neg = octant >> a & 1 != 0;
+                ok &= row(r).is_negative_bitmask() == if neg { 0b1111 } else { 0 };
+            }
+            let finite = row(&o[0]).is_finite_mask()
+                & row(&o[1]).is_finite_mask()
+                & row(&o[2]).is_finite_mask()
+                & row(&d[0]).is_finite_mask()
+                & row(&d[1]).is_finite_mask()
+                & row(&d[2]).is_finite_mask();
+            let nonzero = x.cmpne(Vec4::ZERO) | y.cmpne(Vec4::ZERO) | z.cmpne(Vec4::ZERO);
+            let interval = row(&self.tmin).cmple(row(&self.tmax));
+            ok &= (finite & nonzero & interval).all();
         }
         if !ok {
             return None;
