@@ -490,6 +490,41 @@ impl Triangles {
     }
 }
 
+impl Triangles {
+    /// The block test of [`Primitives::intersect_block_pre`] and
+    /// [`Primitives::intersect_block_lane`]: the AVX2 kernel with the
+    /// ray's constants `pre`, asking `ray` for the ray itself only where
+    /// the kernel leaves lanes to redo (never, with the AVX2 kernel, which
+    /// redoes its own), or the portable test elsewhere.
+    #[inline(always)]
+    fn block_pre<'r>(
+        &self,
+        avx: Avx2,
+        pre: &BlockRay,
+        first: u32,
+        count: u32,
+        tmax: f32,
+        ray: impl FnOnce() -> &'r Ray,
+    ) -> (u32, BlockHits) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            let count = (count as usize).min(BLOCK);
+            let first = first as usize;
+            assert!(first + count <= self.len);
+            let block = crate::simd::triangles8_pre(avx, &self.data, first, count, pre, tmax);
+            if block.1 == 0 {
+                return (block.0, block.2);
+            }
+            redo_lanes(self, |k| (first + k) as u32, block, ray(), tmax)
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            let _ = (avx, pre);
+            self.intersect_block(first, count, ray(), tmax)
+        }
+    }
+}
+
 impl Primitives for Triangles {
     const BLOCK_TEST: bool = true;
     #[inline]
@@ -552,19 +587,7 @@ impl Primitives for Triangles {
         ray: &Ray,
         tmax: f32,
     ) -> (u32, BlockHits) {
-        #[cfg(target_arch = "x86_64")]
-        {
-            let count = (count as usize).min(BLOCK);
-            let first = first as usize;
-            assert!(first + count <= self.len);
-            let block = crate::simd::triangles8_pre(avx, &self.data, first, count, pre, tmax);
-            redo_lanes(self, |k| (first + k) as u32, block, ray, tmax)
-        }
-        #[cfg(not(target_arch = "x86_64"))]
-        {
-            let _ = (avx, pre);
-            self.intersect_block(first, count, ray, tmax)
-        }
+        self.block_pre(avx, pre, first, count, tmax, || ray)
     }
     #[inline(always)]
     fn block_ray_lane(&self, p: &Packet8, i: usize) -> BlockRay {
@@ -581,22 +604,7 @@ impl Primitives for Triangles {
         i: usize,
         tmax: f32,
     ) -> (u32, BlockHits) {
-        #[cfg(target_arch = "x86_64")]
-        {
-            let count = (count as usize).min(BLOCK);
-            let first = first as usize;
-            assert!(first + count <= self.len);
-            let block = crate::simd::triangles8_pre(avx, &self.data, first, count, pre, tmax);
-            if block.1 == 0 {
-                return (block.0, block.2);
-            }
-            redo_lanes(self, |k| (first + k) as u32, block, p.ray(i), tmax)
-        }
-        #[cfg(not(target_arch = "x86_64"))]
-        {
-            let _ = (avx, pre);
-            self.intersect_block(first, count, p.ray(i), tmax)
-        }
+        self.block_pre(avx, pre, first, count, tmax, || p.ray(i))
     }
     #[inline(always)]
     fn intersect_ids(&self, ids: &[u32], ray: &Ray, tmax: f32) -> (u32, BlockHits) {
