@@ -66,8 +66,9 @@ pub struct Packet8<'a> {
 /// was 480 bytes moved a packet), or, for rays given as rows, made from
 /// them the first time a test asks for one (most packets of triangles
 /// never do: the leaf kernels take the rows).
-/// (The larger variant stays inline: a packet lives on the stack for one
-/// query, where a `Box` would be an allocation a packet.)
+///
+/// The larger variant stays inline: a packet lives on the stack for one
+/// query, where a `Box` would be an allocation a packet.
 #[derive(Clone, Debug)]
 #[allow(clippy::large_enum_variant)]
 enum Source<'a> {
