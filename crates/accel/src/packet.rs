@@ -155,10 +155,10 @@ impl<'a> Packet8<'a> {
         Self::assemble(
             Source::Rows(rays, OnceCell::new()),
             &rays.tmax,
-            &lanes.origin,
+            &rays.origin,
             &lanes.inv_dir,
             &lanes.shear,
-            &lanes.tmin,
+            &rays.tmin,
             lanes.k,
             lanes.octant,
         )

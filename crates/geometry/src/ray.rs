@@ -203,21 +203,18 @@ pub struct Rays8 {
 }
 
 /// What [`Ray::new`] computes of each of the eight rays of a [`Rays8`]
-/// whose directions share their octant and dominant axis, by rows: the
-/// reciprocal directions and shear constants that packet traversals test
-/// with (each lane's bit for bit), and the shared axis order and octant.
+/// whose directions share their octant and dominant axis, beyond what the
+/// rays hold, by rows: the reciprocal directions and shear constants that
+/// packet traversals test with (each lane's bit for bit), and the shared
+/// axis order and octant. (A valid ray keeps its origin and interval.)
 /// No `Ray` is made: a traversal that needs one of a lane (a rare case of
 /// the triangle test) makes it with [`Rays8::ray`].
 #[derive(Clone, Debug)]
 pub struct RayLanes8 {
-    /// Origins by axis (the input's).
-    pub origin: [[f32; 8]; 3],
     /// Reciprocal directions by axis (each lane's [`Ray::inv_dir`]).
     pub inv_dir: [[f32; 8]; 3],
     /// Shear constants by component (each lane's [`Ray::shear`]).
     pub shear: [[f32; 8]; 3],
-    /// Lower ends of the intervals.
-    pub tmin: [f32; 8],
     /// The axis order `(kx, ky, kz)` of every lane's [`Ray::shear`].
     pub k: [usize; 3],
     /// The direction's octant, every lane's [`Ray::octant`].
@@ -258,23 +255,20 @@ impl Rays8 {
     #[must_use]
     pub fn lanes(&self) -> Option<RayLanes8> {
         let (o, d) = (&self.origin, &self.dir);
-        // Lane 0's dominant axis and octant, which every lane must share.
-        let dom0 = |i: usize| -> usize {
-            let (x, y, z) = (d[0][i].abs(), d[1][i].abs(), d[2][i].abs());
-            if (x >= y) & (x >= z) {
-                0
-            } else {
-                2 - usize::from(y >= z)
-            }
+        // Lane 0's dominant axis (chosen as `Ray::new` chooses it) and
+        // octant, which every lane must share.
+        let (x, y, z) = (d[0][0].abs(), d[1][0].abs(), d[2][0].abs());
+        let kz = if (x >= y) & (x >= z) {
+            0
+        } else {
+            2 - usize::from(y >= z)
         };
-        let kz = dom0(0);
         let octant = usize::from(d[0][0].is_sign_negative())
             | usize::from(d[1][0].is_sign_negative()) << 1
             | usize::from(d[2][0].is_sign_negative()) << 2;
-        // What lane 0's axis means for every lane's comparisons: `x`
-        // dominant exactly when it is lane 0's, and else `y >= z` exactly
-        // when `y` is lane 0's. Checked four lanes at a time (glam's
-        // `Vec4`: SSE2 or NEON), each condition a mask.
+        // Four lanes at a time (glam's `Vec4`: SSE2 or NEON), each
+        // condition a mask: a lane shares `kz` when `x` dominates exactly
+        // where it does in lane 0, and else `y >= z` exactly where it does.
         let mut ok = true;
         for h in [0, 4] {
             let row = |r: &[f32; 8]| Vec4::from_slice(&r[h..h + 4]);
@@ -325,10 +319,8 @@ impl Rays8 {
             shear[2][i] = 1.0 / dz[i];
         }
         Some(RayLanes8 {
-            origin: *o,
             inv_dir,
             shear,
-            tmin: self.tmin,
             k,
             octant,
         })
@@ -484,9 +476,13 @@ mod tests {
                         for a in 0..3 {
                             assert_eq!(l.inv_dir[a][i].to_bits(), r.inv_dir[a].to_bits());
                             assert_eq!(l.shear[a][i].to_bits(), r.shear[a].to_bits());
-                            assert_eq!(l.origin[a][i].to_bits(), r.origin[a].to_bits());
                         }
-                        assert_eq!(l.tmin[i].to_bits(), r.tmin.to_bits());
+                        // What the packet takes from the rays themselves.
+                        assert_eq!(p.tmin[i].to_bits(), r.tmin.to_bits());
+                        assert_eq!(p.tmax[i].to_bits(), r.tmax.to_bits());
+                        for a in 0..3 {
+                            assert_eq!(p.origin[a][i].to_bits(), r.origin[a].to_bits());
+                        }
                         assert_eq!(l.k, r.shear().1);
                         assert_eq!(l.octant, r.octant());
                     }
