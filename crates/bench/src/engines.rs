@@ -24,9 +24,10 @@ pub struct Runner<'a> {
     /// Passes; the best is reported.
     pub repeat: u32,
     /// Eight consecutive rays at a time, for the engines that trace
-    /// packets (raymesh's `Scene::intersect8` and `Scene::occluded8`,
-    /// Embree's `rtcIntersect8` and `rtcOccluded8`); the others trace one
-    /// ray at a time regardless.
+    /// packets (raymesh's `Scene::intersect8_soa_bare` and
+    /// `Scene::occluded8_soa`, given the rays as rows, Embree's
+    /// `rtcIntersect8` and `rtcOccluded8`); the others trace one ray at a
+    /// time regardless.
     pub packets: bool,
     /// Traces each task's rays as one stream, for the engines with a
     /// stream call (raymesh's `Scene::intersect_stream`, Embree's

@@ -70,9 +70,10 @@ struct Args {
     #[arg(long)]
     chart: Option<PathBuf>,
     /// Eight consecutive rays at a time where the engine has packets
-    /// (raymesh `Scene::intersect8` and `Scene::occluded8`, Embree
-    /// `rtcIntersect8` and `rtcOccluded8`); the Rust peers stay one ray
-    /// at a time.
+    /// (raymesh `Scene::intersect8_soa_bare` and `Scene::occluded8_soa`,
+    /// the rays given as rows, `Rays8`; Embree `rtcIntersect8` and
+    /// `rtcOccluded8`, as its `RTCRay8`); the Rust peers stay one ray at a
+    /// time.
     #[arg(long)]
     packets: bool,
     /// Traces each task's 1,024 rays as one stream where the engine has a
