@@ -415,8 +415,8 @@ mod tests {
     }
 
     /// A value for a packet test: near `base`, or about once in `odd / 2`
-    /// its opposite or one of the hard cases (zeros of both signs, ties, infinities, NaN, huge
-    /// and tiny values).
+    /// its opposite or one of the hard cases (zeros of both signs, ties,
+    /// infinities, NaN, huge and tiny values).
     fn lane_value(next: &mut impl FnMut() -> u32, base: f32, odd: u32) -> f32 {
         const HARD: [f32; 9] = [
             0.0,
