@@ -146,6 +146,35 @@ pub trait Primitives: Send + Sync {
     ) -> (u32, BlockHits) {
         self.intersect_block_pre(avx, pre, first, count, p.ray(i), tmax)
     }
+    /// [`Self::intersect_block_lane`] of each lane in `lanes` of the
+    /// packet `p`, in increasing order, against the block
+    /// `first..first + count`: lane `i` with the bound `tmax[i]`, its mask
+    /// and hits handed to `each(i, mask, hits)`. The same results. A
+    /// packet's leaf that few of its lanes reach is tested so, a block at
+    /// a time: triangles load the block's rows once for all the lanes;
+    /// the default tests each lane with [`Self::block_ray_lane`]'s
+    /// constants.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn intersect_block_lanes(
+        &self,
+        avx: Avx2,
+        first: u32,
+        count: u32,
+        p: &Packet8,
+        lanes: u32,
+        tmax: &[f32; LANES],
+        mut each: impl FnMut(usize, u32, BlockHits),
+    ) {
+        let mut m = lanes;
+        while m != 0 {
+            let i = m.trailing_zeros() as usize;
+            m &= m - 1;
+            let pre = self.block_ray_lane(p, i);
+            let (mask, hits) = self.intersect_block_lane(avx, &pre, first, count, p, i, tmax[i]);
+            each(i, mask, hits);
+        }
+    }
     /// Tests primitives `ids` (at most [`BLOCK`]; lane `k` is primitive
     /// `ids[k]`) as [`Self::intersect_block`] tests consecutive ones: the
     /// k-d tree's leaves and the grid's cells name their primitives by
@@ -606,6 +635,42 @@ impl Primitives for Triangles {
     ) -> (u32, BlockHits) {
         self.block_pre(avx, pre, first, count, tmax, || p.ray(i))
     }
+    // Elsewhere the default: the portable block test of each lane's ray.
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    fn intersect_block_lanes(
+        &self,
+        avx: Avx2,
+        first: u32,
+        count: u32,
+        p: &Packet8,
+        lanes: u32,
+        tmax: &[f32; LANES],
+        mut each: impl FnMut(usize, u32, BlockHits),
+    ) {
+        let count = (count as usize).min(BLOCK);
+        let first = first as usize;
+        assert!(first + count <= self.len);
+        crate::simd::triangles8_lanes(
+            avx,
+            &self.data,
+            first,
+            count,
+            p,
+            lanes,
+            tmax,
+            |i, hit, redo, hits| {
+                if redo == 0 {
+                    each(i, hit, hits);
+                } else {
+                    let block = (hit, redo, hits);
+                    let (hit, hits) =
+                        redo_lanes(self, |k| (first + k) as u32, block, p.ray(i), tmax[i]);
+                    each(i, hit, hits);
+                }
+            },
+        );
+    }
     #[inline(always)]
     fn intersect_ids(&self, ids: &[u32], ray: &Ray, tmax: f32) -> (u32, BlockHits) {
         let ids = &ids[..ids.len().min(BLOCK)];
@@ -836,6 +901,19 @@ impl<P: Primitives + ?Sized> Primitives for &P {
         tmax: f32,
     ) -> (u32, BlockHits) {
         (**self).intersect_block_lane(avx, pre, first, count, p, i, tmax)
+    }
+    #[inline(always)]
+    fn intersect_block_lanes(
+        &self,
+        avx: Avx2,
+        first: u32,
+        count: u32,
+        p: &Packet8,
+        lanes: u32,
+        tmax: &[f32; LANES],
+        each: impl FnMut(usize, u32, BlockHits),
+    ) {
+        (**self).intersect_block_lanes(avx, first, count, p, lanes, tmax, each);
     }
     #[inline(always)]
     fn intersect_ids(&self, ids: &[u32], ray: &Ray, tmax: f32) -> (u32, BlockHits) {

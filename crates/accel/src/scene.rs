@@ -764,16 +764,7 @@ impl<P: Primitives> Scene<P> {
                 #[cfg(target_arch = "x86_64")]
                 if let Some(avx) = Avx2::detect() {
                     avx.run(|| {
-                        self.leaf_lanes::<ANY, _>(
-                            p,
-                            (first, count, lanes),
-                            tmax,
-                            &mut best,
-                            |i| self.prims.block_ray_lane(p, i),
-                            |i, pre, s, n, t| {
-                                self.prims.intersect_block_lane(avx, pre, s, n, p, i, t)
-                            },
-                        );
+                        self.leaf_blocks::<ANY>(avx, p, (first, count, lanes), tmax, &mut best);
                     });
                     return;
                 }
@@ -811,6 +802,63 @@ impl<P: Primitives> Scene<P> {
             WideRef::W2(b) => b.traverse_packet(p, &mut tmax, &mut leaf),
         }
         best
+    }
+
+    /// A packet's leaf (`first..first + count`) tested a block at a time
+    /// for the lanes in `lanes` of `p`, each block against every lane
+    /// still in it ([`Primitives::intersect_block_lanes`]): each lane's
+    /// blocks in the order, and with the bounds, that [`Self::leaf_lanes`]
+    /// tests them, so the same hits. Closest hits lower the lane's
+    /// `tmax`; with `ANY`, a lane's first hit ends it (`tmax` to `-inf`).
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    fn leaf_blocks<const ANY: bool>(
+        &self,
+        avx: Avx2,
+        p: &Packet8,
+        (first, count, lanes): (u32, u32, u32),
+        tmax: &mut [f32; LANES],
+        best: &mut [Option<(u32, PrimHit)>; LANES],
+    ) {
+        let (mut start, end) = (first, first + count);
+        let mut live = lanes;
+        while start < end && live != 0 {
+            let n = (end - start).min(BLOCK as u32);
+            // Any hit: each lane's own bound, as `leaf_any_by` takes it.
+            let bound = if ANY { *p.tmax() } else { *tmax };
+            let mut ended = 0;
+            self.prims.intersect_block_lanes(
+                avx,
+                start,
+                n,
+                p,
+                live,
+                &bound,
+                |i, mut mask, hits| {
+                    if !ANY {
+                        while mask != 0 {
+                            let k = mask.trailing_zeros() as usize;
+                            mask &= mask - 1;
+                            if hits.t[k] <= tmax[i] {
+                                self.offer(
+                                    &mut best[i],
+                                    &mut tmax[i],
+                                    start + k as u32,
+                                    hits.get(k),
+                                );
+                            }
+                        }
+                    } else if mask != 0 {
+                        let k = mask.trailing_zeros();
+                        best[i] = Some((start + k, hits.get(k as usize)));
+                        tmax[i] = f32::NEG_INFINITY;
+                        ended |= 1 << i;
+                    }
+                },
+            );
+            live &= !ended;
+            start += BLOCK as u32;
+        }
     }
 
     /// A packet's leaf (`first..first + count`) tested lane by lane for

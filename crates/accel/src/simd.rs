@@ -966,6 +966,52 @@ pub(crate) fn triangles8_pre(
     active_lanes(hit, count, out)
 }
 
+/// [`triangles8_pre`] of each lane in `lanes` of the packet `p`, in
+/// increasing order, against one block, whose rows are loaded once for
+/// all of them (the lanes share an axis order, so they read the same
+/// rows): lane `i` is tested with the bound `tmax[i]` and its results go
+/// to `each(i, hit, redo, hits)`, `redo` as [`triangles8_pre`]'s (empty).
+/// A packet's leaf reached by few of its lanes is tested so: lane by lane
+/// each test reloaded the nine rows, two loads and a blend each.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn triangles8_lanes(
+    _avx: Avx2,
+    data: &[f32],
+    first: usize,
+    count: usize,
+    p: &crate::Packet8,
+    lanes: u32,
+    tmax: &[f32; 8],
+    mut each: impl FnMut(usize, u32, u32, BlockHits),
+) {
+    let (at, span) = block_at(first, count);
+    assert!(at + block_reach(span) <= data.len());
+    // SAFETY: the packet's row offsets come from `kernel_rows`, each at
+    // most 64, so each of the two loads of 8 lanes a row stays inside
+    // `data` (asserted); the CPU has AVX2 (the `Avx2` proof).
+    let block = unsafe {
+        load_block8(
+            data.as_ptr().add(at),
+            |r| p.block_rows[r],
+            first % GROUP_SLOTS,
+            span,
+        )
+    };
+    let mut m = lanes;
+    while m != 0 {
+        let i = m.trailing_zeros() as usize;
+        m &= m - 1;
+        let ray = BlockRay::lane(p, i);
+        // SAFETY: the CPU has AVX2 (the `Avx2` proof).
+        let (hit, out) =
+            unsafe { triangles8_loaded(&block, ray.shear, ray.origin, ray.tmin, tmax[i]) };
+        let (hit, redo, out) = active_lanes(hit, count, out);
+        each(i, hit, redo, out);
+    }
+}
+
 /// # Safety
 /// The CPU must have AVX2; for each row offset `o` of at most 64,
 /// `rows.add(o)` and `rows.add(o + span)` must address 8 readable floats.
@@ -1026,6 +1072,69 @@ unsafe fn triangles8_core(
     tmin: f32,
     tmax: f32,
 ) -> (u32, BlockHits) {
+    // SAFETY: as this function's contract.
+    unsafe {
+        let block = load_block8(rows, row, lane, span);
+        triangles8_loaded(&block, shear, origin, tmin, tmax)
+    }
+}
+
+/// The 9 rows of 8 lanes [`triangles8_core`] reads (its `rows`, `row`,
+/// `lane` and `span`), loaded: row `r` is corner `r / 3`'s permuted axis
+/// `r % 3`.
+///
+/// # Safety
+/// As [`triangles8_core`]'s.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn load_block8(
+    rows: *const f32,
+    row: impl Fn(usize) -> usize,
+    lane: usize,
+    span: usize,
+) -> [std::arch::x86_64::__m256; 9] {
+    use std::arch::x86_64::*;
+    // Lanes from `8 - lane` on: the next group's.
+    let next = _mm256_castsi256_ps(_mm256_cmpgt_epi32(
+        _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
+        _mm256_set1_epi32(7 - lane as i32),
+    ));
+    // Row `r`'s 8 lanes (a macro, not a closure, so that the intrinsics
+    // inline wherever this function does).
+    macro_rules! load {
+        ($r:expr) => {{
+            let p = rows.add(row($r));
+            _mm256_blendv_ps(_mm256_loadu_ps(p), _mm256_loadu_ps(p.add(span)), next)
+        }};
+    }
+    [
+        load!(0),
+        load!(1),
+        load!(2),
+        load!(3),
+        load!(4),
+        load!(5),
+        load!(6),
+        load!(7),
+        load!(8),
+    ]
+}
+
+/// The arithmetic of [`triangles8_core`] on a block's rows already loaded
+/// ([`load_block8`]): a packet's leaf loads a block once and runs each
+/// lane's ray through this.
+///
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn triangles8_loaded(
+    block: &[std::arch::x86_64::__m256; 9],
+    shear: [f32; 3],
+    origin: [f32; 3],
+    tmin: f32,
+    tmax: f32,
+) -> (u32, BlockHits) {
     use std::arch::x86_64::*;
     let (sx, sy, sz) = (
         _mm256_set1_ps(shear[0]),
@@ -1037,26 +1146,14 @@ unsafe fn triangles8_core(
         _mm256_set1_ps(origin[1]),
         _mm256_set1_ps(origin[2]),
     );
-    // Lanes from `8 - lane` on: the next group's.
-    let next = _mm256_castsi256_ps(_mm256_cmpgt_epi32(
-        _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
-        _mm256_set1_epi32(7 - lane as i32),
-    ));
-    // Row `r`'s 8 lanes (macros, not closures, so that the intrinsics
-    // inline wherever this function does).
-    macro_rules! load {
-        ($r:expr) => {{
-            let p = rows.add(row($r));
-            _mm256_blendv_ps(_mm256_loadu_ps(p), _mm256_loadu_ps(p.add(span)), next)
-        }};
-    }
     // Corner `c` relative to the ray origin and sheared to 2D, in the
-    // scalar test's order of operations.
+    // scalar test's order of operations (a macro, not a closure, so that
+    // the intrinsics inline wherever this function does).
     macro_rules! shear {
         ($c:expr) => {{
-            let x = _mm256_sub_ps(load!(3 * $c), ox);
-            let y = _mm256_sub_ps(load!(3 * $c + 1), oy);
-            let z = _mm256_sub_ps(load!(3 * $c + 2), oz);
+            let x = _mm256_sub_ps(block[3 * $c], ox);
+            let y = _mm256_sub_ps(block[3 * $c + 1], oy);
+            let z = _mm256_sub_ps(block[3 * $c + 2], oz);
             (
                 _mm256_sub_ps(x, _mm256_mul_ps(sx, z)),
                 _mm256_sub_ps(y, _mm256_mul_ps(sy, z)),
