@@ -28,6 +28,27 @@ use std::cell::OnceCell;
 /// Rays in a packet: one per SIMD lane of AVX.
 pub const LANES: usize = 8;
 
+/// What a packet walk does at a leaf ([`crate::WideBvh`]'s and
+/// [`crate::Bvh`]'s `traverse_packet`): tests primitives
+/// `first..first + count` for the lanes in `lanes`, lowering their bounds
+/// in `tmax` (to `-inf` for a lane that is done). `avx` is the walk's
+/// proof that it runs in code compiled for AVX2, where it does.
+///
+/// A trait and not a closure so that the leaf's `#[inline(always)]`
+/// inlines it into the walk's AVX2 code: the closure stayed a call each
+/// leaf, with a CPU check and a call into AVX2 code inside it.
+pub(crate) trait PacketLeaf {
+    /// Tests the leaf for the lanes in `lanes`.
+    fn visit(
+        &mut self,
+        avx: Option<crate::simd::Avx2>,
+        first: u32,
+        count: u32,
+        lanes: u32,
+        tmax: &mut [f32; LANES],
+    );
+}
+
 /// Eight rays in structure-of-arrays form, with what the box and triangle
 /// tests need of each, for [`crate::Scene::intersect8`]. All share their
 /// direction's octant and dominant axis (see [`Packet8::new`]).

@@ -2,7 +2,7 @@
 
 use crate::simd::avx_run;
 use crate::{
-    packet::{Packet8, LANES},
+    packet::{Packet8, PacketLeaf, LANES},
     prims::BLOCK,
     Accel, AccelKind, AccelStats, Avx2, BlockHits, BuildConfig, Bvh, Bvh4, Bvh8, CountStats, Grid,
     NoStats, PrimHit, Primitives, RayCounter, TriangleMesh, Triangles,
@@ -744,55 +744,11 @@ impl<P: Primitives> Scene<P> {
         wide: WideRef<'_>,
         p: &Packet8,
     ) -> [Option<(u32, PrimHit)>; LANES] {
-        let mut best: [Option<(u32, PrimHit)>; LANES] = [None; LANES];
         let mut tmax: [f32; LANES] = *p.tmax();
-        // Any hit: a lane that has one is done, its bound set to -inf,
-        // which every later box and triangle test of the lane fails.
-        let mut leaf = |first: u32, count: u32, lanes: u32, tmax: &mut [f32; LANES]| {
-            // A leaf tested lane by lane takes one block test per lane and
-            // block; triangle by triangle, one packet test per primitive.
-            // Fine meshes make leaves that few lanes reach: then the first,
-            // up to twice as many block tests as triangles (a block test is
-            // the cheaper: `raymesh-ab --packets`, primary rays, against
-            // as many: bunny00 +0-1%, the dragon +4-5%, the pig +5-7%,
-            // polygon_mesh +3-5%, bunny00's shadow rays +9%; three times:
-            // the dragon -4%).
-            if lanes.count_ones() * count.div_ceil(BLOCK as u32) < 2 * count {
-                // In one AVX2 region, each lane's block test inlined with
-                // its ray's constants (as the one-ray walk's), rather than
-                // a call a block that checks the CPU and redoes them.
-                #[cfg(target_arch = "x86_64")]
-                if let Some(avx) = Avx2::detect() {
-                    avx.run(|| {
-                        self.leaf_blocks::<ANY>(avx, p, (first, count, lanes), tmax, &mut best);
-                    });
-                    return;
-                }
-                self.leaf_lanes::<ANY, _>(
-                    p,
-                    (first, count, lanes),
-                    tmax,
-                    &mut best,
-                    |_| (),
-                    |i, (), s, n, t| self.prims.intersect_block(s, n, p.ray(i), t),
-                );
-                return;
-            }
-            self.prims.intersect_packet_run(
-                first,
-                count,
-                p,
-                lanes,
-                tmax,
-                &mut |i, prim, h, tmax| {
-                    if !ANY {
-                        self.offer(&mut best[i], &mut tmax[i], prim, h);
-                    } else if best[i].is_none() {
-                        best[i] = Some((prim, h));
-                        tmax[i] = f32::NEG_INFINITY;
-                    }
-                },
-            );
+        let mut leaf = WalkLeaf::<P, ANY> {
+            scene: self,
+            p,
+            best: [None; LANES],
         };
         match wide {
             WideRef::W4(b) if ANY => b.traverse_packet::<false>(p, &mut tmax, &mut leaf),
@@ -801,7 +757,7 @@ impl<P: Primitives> Scene<P> {
             WideRef::W8(b) => b.traverse_packet::<true>(p, &mut tmax, &mut leaf),
             WideRef::W2(b) => b.traverse_packet(p, &mut tmax, &mut leaf),
         }
-        best
+        leaf.best
     }
 
     /// A packet's leaf (`first..first + count`) tested a block at a time
@@ -1062,6 +1018,67 @@ impl<P: Primitives> Surface for Scene<P> {
     }
     fn intersect_count(&self, ray: &Ray, stats: &mut CountStats) -> Option<Hit> {
         self.intersect_counted(ray, stats)
+    }
+}
+
+/// The leaf of [`Scene::walk_packet`]'s walk: the scene, the packet and
+/// each lane's hit so far. With `ANY`, a lane that has one is done, its
+/// bound set to -inf, which every later box and triangle test of the lane
+/// fails.
+struct WalkLeaf<'a, 'r, P, const ANY: bool> {
+    scene: &'a Scene<P>,
+    p: &'a Packet8<'r>,
+    best: [Option<(u32, PrimHit)>; LANES],
+}
+
+impl<P: Primitives, const ANY: bool> PacketLeaf for WalkLeaf<'_, '_, P, ANY> {
+    #[inline(always)]
+    fn visit(
+        &mut self,
+        avx: Option<Avx2>,
+        first: u32,
+        count: u32,
+        lanes: u32,
+        tmax: &mut [f32; LANES],
+    ) {
+        let (scene, p, best) = (self.scene, self.p, &mut self.best);
+        // A leaf tested lane by lane takes one block test per lane and
+        // block; triangle by triangle, one packet test per primitive.
+        // Fine meshes make leaves that few lanes reach: then the first,
+        // up to twice as many block tests as triangles (a block test is
+        // the cheaper: `raymesh-ab --packets`, primary rays, against
+        // as many: bunny00 +0-1%, the dragon +4-5%, the pig +5-7%,
+        // polygon_mesh +3-5%, bunny00's shadow rays +9%; three times:
+        // the dragon -4%).
+        if lanes.count_ones() * count.div_ceil(BLOCK as u32) < 2 * count {
+            // Inside the walk's AVX2 code, each block loaded once for the
+            // lanes and tested with each lane's constants.
+            #[cfg(target_arch = "x86_64")]
+            if let Some(avx) = avx {
+                scene.leaf_blocks::<ANY>(avx, p, (first, count, lanes), tmax, best);
+                return;
+            }
+            let _ = avx;
+            scene.leaf_lanes::<ANY, _>(
+                p,
+                (first, count, lanes),
+                tmax,
+                best,
+                |_| (),
+                |i, (), s, n, t| scene.prims.intersect_block(s, n, p.ray(i), t),
+            );
+            return;
+        }
+        scene
+            .prims
+            .intersect_packet_run(first, count, p, lanes, tmax, &mut |i, prim, h, tmax| {
+                if !ANY {
+                    scene.offer(&mut best[i], &mut tmax[i], prim, h);
+                } else if best[i].is_none() {
+                    best[i] = Some((prim, h));
+                    tmax[i] = f32::NEG_INFINITY;
+                }
+            });
     }
 }
 

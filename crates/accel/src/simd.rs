@@ -12,6 +12,8 @@
 #[cfg(target_arch = "x86_64")]
 use crate::bvh::{BoxRay, Bvh, NodePair, PairRay, WideNode};
 #[cfg(target_arch = "x86_64")]
+use crate::packet::PacketLeaf;
+#[cfg(target_arch = "x86_64")]
 use crate::BlockHits;
 use raymesh_geometry::Ray;
 
@@ -350,6 +352,72 @@ unsafe fn stream_loop_avx2_impl(
     bvh.stream_loop::<{ crate::bvh::STREAM_LANES }>(rays, leaf, |p, r, b| unsafe {
         pair_slab_avx(p, r, b)
     });
+}
+
+/// [`crate::bvh::WideBvh`]'s packet walk compiled with AVX2, its box
+/// tests and its leaves ([`PacketLeaf::visit`], `#[inline(always)]`)
+/// inlined, as [`stream_loop_avx2`]'s: handed to [`Avx2::run`] as a
+/// closure, the walk with its leaf inlined was left a function of its
+/// own, compiled without AVX2 (closest hits 6 times slower).
+#[cfg(target_arch = "x86_64")]
+pub(crate) fn packet_walk_avx2<const W: usize, const ORDERED: bool>(
+    avx: Avx2,
+    bvh: &crate::bvh::WideBvh<W>,
+    p: &crate::Packet8,
+    tmax: &mut [f32; crate::LANES],
+    leaf: &mut impl PacketLeaf,
+) {
+    // SAFETY: the proof exists, so `detect` (its only maker) found AVX2 on
+    // this CPU; the function has no other requirement.
+    unsafe { packet_walk_avx2_impl::<W, ORDERED>(avx, bvh, p, tmax, leaf) }
+}
+
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn packet_walk_avx2_impl<const W: usize, const ORDERED: bool>(
+    avx: Avx2,
+    bvh: &crate::bvh::WideBvh<W>,
+    p: &crate::Packet8,
+    tmax: &mut [f32; crate::LANES],
+    leaf: &mut impl PacketLeaf,
+) {
+    bvh.packet_loop::<ORDERED>(
+        p,
+        tmax,
+        leaf,
+        Some(avx),
+        |p, near, far, bound| crate::packet::slab_avx(avx, p, near, far, bound),
+        |a, b| le_mask8(avx, a, b),
+    );
+}
+
+/// [`Bvh`]'s packet walk compiled with AVX2, as [`packet_walk_avx2`].
+#[cfg(target_arch = "x86_64")]
+pub(crate) fn packet_walk_binary_avx2(
+    avx: Avx2,
+    bvh: &Bvh,
+    p: &crate::Packet8,
+    tmax: &mut [f32; crate::LANES],
+    leaf: &mut impl PacketLeaf,
+) {
+    // SAFETY: as `packet_walk_avx2`'s.
+    unsafe { packet_walk_binary_avx2_impl(avx, bvh, p, tmax, leaf) }
+}
+
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn packet_walk_binary_avx2_impl(
+    avx: Avx2,
+    bvh: &Bvh,
+    p: &crate::Packet8,
+    tmax: &mut [f32; crate::LANES],
+    leaf: &mut impl PacketLeaf,
+) {
+    bvh.packet_loop(p, tmax, leaf, Some(avx));
 }
 
 /// A packet's leaf ([`crate::packet::triangle_run`]) compiled with AVX2,

@@ -15,7 +15,7 @@ pub use build::{BvhBuilder, Clip};
 pub(crate) use wide::slab_scalar;
 pub use wide::{BoxRay, Bvh4, Bvh8, Node4, Node8, WideBvh, WideNode};
 
-use crate::packet::{self, Packet8, LANES};
+use crate::packet::{self, Packet8, PacketLeaf, LANES};
 use crate::prims::BLOCK;
 use crate::{simd, test_each, AccelStats, Leaf, RayCounter};
 use raymesh_geometry::{
@@ -707,24 +707,26 @@ impl Bvh {
         &self,
         p: &Packet8,
         tmax: &mut [f32; LANES],
-        leaf: &mut impl FnMut(u32, u32, u32, &mut [f32; LANES]),
+        leaf: &mut impl PacketLeaf,
     ) {
         if self.pairs.is_empty() {
             return;
         }
         #[cfg(target_arch = "x86_64")]
-        if simd::has_avx2() {
-            return simd::with_avx2(|| self.packet_loop(p, tmax, leaf));
+        if let Some(avx) = simd::Avx2::detect() {
+            return simd::packet_walk_binary_avx2(avx, self, p, tmax, leaf);
         }
-        self.packet_loop(p, tmax, leaf);
+        self.packet_loop(p, tmax, leaf, None);
     }
 
+    /// The walk of [`Self::traverse_packet`], `avx` handed to the leaves.
     #[inline(always)]
-    fn packet_loop(
+    pub(crate) fn packet_loop(
         &self,
         p: &Packet8,
         tmax: &mut [f32; LANES],
-        leaf: &mut impl FnMut(u32, u32, u32, &mut [f32; LANES]),
+        leaf: &mut impl PacketLeaf,
+        avx: Option<simd::Avx2>,
     ) {
         let test = |n: &Node, bound: &[f32; LANES]| packet::slab(p, n.min, n.max, bound);
         let bound: [f32; LANES] = std::array::from_fn(|i| cull_bound(tmax[i]));
@@ -743,7 +745,7 @@ impl Bvh {
             if lanes != 0 {
                 let node = self.node(cur.child);
                 if node.is_leaf() {
-                    leaf(node.index, node.count, lanes, tmax);
+                    leaf.visit(avx, node.index, node.count, lanes, tmax);
                 } else {
                     let pair = &self.pairs[(node.index >> 1) as usize].0;
                     let (ml, el) = test(&pair[0], &bound);

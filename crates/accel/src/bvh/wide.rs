@@ -8,7 +8,7 @@
 //! has AVX2, and the same plain loops elsewhere.
 
 use super::{each_prim, Bvh};
-use crate::packet::{self, Frustum, Packet8, LANES};
+use crate::packet::{self, Frustum, Packet8, PacketLeaf, LANES};
 use crate::prims::BLOCK;
 use crate::simd::{self, Avx2};
 use crate::{AccelStats, Leaf, RayCounter};
@@ -783,8 +783,9 @@ impl<const W: usize> WideBvh<W> {
     /// that some lane enters are visited nearest first (by the least entry
     /// distance among their lanes), each with the lanes that enter it; a
     /// lane drops out of a subtree when its entry lies beyond its own
-    /// `tmax`. Each leaf reached calls `leaf(first, count, lanes, tmax)`,
-    /// which tests the lanes in `lanes` and lowers their `tmax`. Without
+    /// `tmax`. Each leaf reached calls
+    /// [`PacketLeaf::visit`]`(avx, first, count, lanes, tmax)`, which tests
+    /// the lanes in `lanes` and lowers their `tmax`. Without
     /// `ORDERED` (any-hit queries, which stop a lane at its first hit
     /// wherever it lies) the children go in slot order, unsorted, as the
     /// one-ray any-hit walk's do (`raymesh-peers --packets`, any hits:
@@ -794,22 +795,14 @@ impl<const W: usize> WideBvh<W> {
         &self,
         p: &Packet8,
         tmax: &mut [f32; LANES],
-        leaf: &mut impl FnMut(u32, u32, u32, &mut [f32; LANES]),
+        leaf: &mut impl PacketLeaf,
     ) {
         if self.nodes.is_empty() {
             return;
         }
         #[cfg(target_arch = "x86_64")]
         if let Some(avx) = simd::Avx2::detect() {
-            return simd::with_avx2(|| {
-                self.packet_loop::<ORDERED>(
-                    p,
-                    tmax,
-                    leaf,
-                    |p, near, far, bound| packet::slab_avx(avx, p, near, far, bound),
-                    |a, b| simd::le_mask8(avx, a, b),
-                )
-            });
+            return simd::packet_walk_avx2::<W, ORDERED>(avx, self, p, tmax, leaf);
         }
         // A closure, as for the one-ray walk's portable test.
         let test =
@@ -817,7 +810,7 @@ impl<const W: usize> WideBvh<W> {
         let le = |a: &[f32; LANES], b: &[f32; LANES]| {
             packet::lane_mask(&std::array::from_fn(|i| a[i] <= b[i]))
         };
-        self.packet_loop::<ORDERED>(p, tmax, leaf, test, le);
+        self.packet_loop::<ORDERED>(p, tmax, leaf, None, test, le);
     }
 
     /// The packet walk, generic over each child's test of the packet's
@@ -826,11 +819,12 @@ impl<const W: usize> WideBvh<W> {
     /// with bounds (`le`, as [`packet::le_mask`]), so that the AVX2 walk
     /// makes no CPU check per child or step.
     #[inline(always)]
-    fn packet_loop<const ORDERED: bool>(
+    pub(crate) fn packet_loop<const ORDERED: bool>(
         &self,
         p: &Packet8,
         tmax: &mut [f32; LANES],
-        leaf: &mut impl FnMut(u32, u32, u32, &mut [f32; LANES]),
+        leaf: &mut impl PacketLeaf,
+        avx: Option<Avx2>,
         test: impl Fn(&Packet8, [f32; 3], [f32; 3], &[f32; LANES]) -> (u32, [f32; LANES]),
         le: impl Fn(&[f32; LANES], &[f32; LANES]) -> u32,
     ) {
@@ -846,7 +840,7 @@ impl<const W: usize> WideBvh<W> {
             let lanes = cur.lanes & le(&cur.entry, &bound);
             if lanes != 0 {
                 if cur.count > 0 {
-                    leaf(cur.child, cur.count, lanes, tmax);
+                    leaf.visit(avx, cur.child, cur.count, lanes, tmax);
                 } else {
                     let n = &self.nodes[cur.child as usize];
                     // The children some lane may enter, by one interval
