@@ -77,6 +77,7 @@ pub struct Packet8<'a> {
     pub(crate) shear: [[f32; LANES]; 3],
     /// The triangle block kernel's row offsets for the axis order `k`
     /// (every lane's: see [`crate::BlockRay`]).
+    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
     pub(crate) block_rows: [usize; 9],
     /// The packet's bounds for [`frustum`], when every lane's reciprocal
     /// direction is finite.

@@ -119,41 +119,15 @@ pub trait Primitives: Send + Sync {
         let _ = (avx, pre);
         self.intersect_block(first, count, ray, tmax)
     }
-    /// [`Self::block_ray`] of lane `i` of the packet `p`. Triangles make
-    /// it from the packet's rows, with no `Ray` of the lane made; the
-    /// default asks the packet for the lane's ray.
-    #[inline(always)]
-    fn block_ray_lane(&self, p: &Packet8, i: usize) -> BlockRay {
-        self.block_ray(p.ray(i))
-    }
-    /// [`Self::intersect_block_pre`] of lane `i` of the packet `p`, with
-    /// `pre` = [`Self::block_ray_lane`] of it: the same results.
-    /// Triangles ask the packet for the lane's `Ray` only where the block
-    /// kernel leaves lanes for the scalar test to redo (see `redo_lanes`;
-    /// the AVX2 kernel redoes its own, so on x86-64 never); the default
-    /// asks every time.
-    #[inline(always)]
-    #[allow(clippy::too_many_arguments)]
-    fn intersect_block_lane(
-        &self,
-        avx: Avx2,
-        pre: &BlockRay,
-        first: u32,
-        count: u32,
-        p: &Packet8,
-        i: usize,
-        tmax: f32,
-    ) -> (u32, BlockHits) {
-        self.intersect_block_pre(avx, pre, first, count, p.ray(i), tmax)
-    }
-    /// [`Self::intersect_block_lane`] of each lane in `lanes` of the
+    /// [`Self::intersect_block_pre`] of each lane in `lanes` of the
     /// packet `p`, in increasing order, against the block
     /// `first..first + count`: lane `i` with the bound `tmax[i]`, its mask
     /// and hits handed to `each(i, mask, hits)`. The same results. A
     /// packet's leaf that few of its lanes reach is tested so, a block at
-    /// a time: triangles load the block's rows once for all the lanes;
-    /// the default tests each lane with [`Self::block_ray_lane`]'s
-    /// constants.
+    /// a time: triangles load the block's rows once for all the lanes and
+    /// take each lane's constants from the packet's rows, with no `Ray` of
+    /// the lane made (but where the scalar test must redo a lane, which
+    /// the AVX2 kernel never leaves); the default tests each lane's ray.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
     fn intersect_block_lanes(
@@ -170,8 +144,9 @@ pub trait Primitives: Send + Sync {
         while m != 0 {
             let i = m.trailing_zeros() as usize;
             m &= m - 1;
-            let pre = self.block_ray_lane(p, i);
-            let (mask, hits) = self.intersect_block_lane(avx, &pre, first, count, p, i, tmax[i]);
+            let ray = p.ray(i);
+            let pre = self.block_ray(ray);
+            let (mask, hits) = self.intersect_block_pre(avx, &pre, first, count, ray, tmax[i]);
             each(i, mask, hits);
         }
     }
@@ -519,41 +494,6 @@ impl Triangles {
     }
 }
 
-impl Triangles {
-    /// The block test of [`Primitives::intersect_block_pre`] and
-    /// [`Primitives::intersect_block_lane`]: the AVX2 kernel with the
-    /// ray's constants `pre`, asking `ray` for the ray itself only where
-    /// the kernel leaves lanes to redo (never, with the AVX2 kernel, which
-    /// redoes its own), or the portable test elsewhere.
-    #[inline(always)]
-    fn block_pre<'r>(
-        &self,
-        avx: Avx2,
-        pre: &BlockRay,
-        first: u32,
-        count: u32,
-        tmax: f32,
-        ray: impl FnOnce() -> &'r Ray,
-    ) -> (u32, BlockHits) {
-        #[cfg(target_arch = "x86_64")]
-        {
-            let count = (count as usize).min(BLOCK);
-            let first = first as usize;
-            assert!(first + count <= self.len);
-            let block = crate::simd::triangles8_pre(avx, &self.data, first, count, pre, tmax);
-            if block.1 == 0 {
-                return (block.0, block.2);
-            }
-            redo_lanes(self, |k| (first + k) as u32, block, ray(), tmax)
-        }
-        #[cfg(not(target_arch = "x86_64"))]
-        {
-            let _ = (avx, pre);
-            self.intersect_block(first, count, ray(), tmax)
-        }
-    }
-}
-
 impl Primitives for Triangles {
     const BLOCK_TEST: bool = true;
     #[inline]
@@ -616,24 +556,19 @@ impl Primitives for Triangles {
         ray: &Ray,
         tmax: f32,
     ) -> (u32, BlockHits) {
-        self.block_pre(avx, pre, first, count, tmax, || ray)
-    }
-    #[inline(always)]
-    fn block_ray_lane(&self, p: &Packet8, i: usize) -> BlockRay {
-        BlockRay::lane(p, i)
-    }
-    #[inline(always)]
-    fn intersect_block_lane(
-        &self,
-        avx: Avx2,
-        pre: &BlockRay,
-        first: u32,
-        count: u32,
-        p: &Packet8,
-        i: usize,
-        tmax: f32,
-    ) -> (u32, BlockHits) {
-        self.block_pre(avx, pre, first, count, tmax, || p.ray(i))
+        #[cfg(target_arch = "x86_64")]
+        {
+            let count = (count as usize).min(BLOCK);
+            let first = first as usize;
+            assert!(first + count <= self.len);
+            let block = crate::simd::triangles8_pre(avx, &self.data, first, count, pre, tmax);
+            redo_lanes(self, |k| (first + k) as u32, block, ray, tmax)
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            let _ = (avx, pre);
+            self.intersect_block(first, count, ray, tmax)
+        }
     }
     // Elsewhere the default: the portable block test of each lane's ray.
     #[cfg(target_arch = "x86_64")]
@@ -884,23 +819,6 @@ impl<P: Primitives + ?Sized> Primitives for &P {
         tmax: f32,
     ) -> (u32, BlockHits) {
         (**self).intersect_block_pre(avx, pre, first, count, ray, tmax)
-    }
-    #[inline(always)]
-    fn block_ray_lane(&self, p: &Packet8, i: usize) -> BlockRay {
-        (**self).block_ray_lane(p, i)
-    }
-    #[inline(always)]
-    fn intersect_block_lane(
-        &self,
-        avx: Avx2,
-        pre: &BlockRay,
-        first: u32,
-        count: u32,
-        p: &Packet8,
-        i: usize,
-        tmax: f32,
-    ) -> (u32, BlockHits) {
-        (**self).intersect_block_lane(avx, pre, first, count, p, i, tmax)
     }
     #[inline(always)]
     fn intersect_block_lanes(

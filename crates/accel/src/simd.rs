@@ -974,6 +974,7 @@ impl BlockRay {
 impl BlockRay {
     /// [`Self::new`] of lane `i` of the packet `p`, from its rows: the same
     /// constants, with no `Ray` of the lane made.
+    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
     #[inline(always)]
     pub(crate) fn lane(p: &crate::Packet8, i: usize) -> Self {
         Self {
