@@ -1545,6 +1545,57 @@ mod tests {
 
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(2000))]
+        /// A packet's block test ([`crate::Primitives::intersect_block_lanes`],
+        /// the block's rows loaded once for every lane) gives each lane what
+        /// the scalar test gives its ray with its own bound, bit for bit,
+        /// and reports exactly the lanes asked for, in increasing order.
+        #[test]
+        fn packet_block_lanes_match_scalar(
+            tris in proptest::collection::vec(
+                prop_oneof![(hard_vec3(), hard_vec3(), hard_vec3()), (lattice(), lattice(), lattice())], 32),
+            first in 0usize..24, count in 0usize..9,
+            origins in proptest::collection::vec(prop_oneof![hard_vec3(), lattice()], 8),
+            d in prop_oneof![hard_vec3(), lattice()],
+            tmin in prop_oneof![Just(0.0f32), hard_coord()],
+            tmax in proptest::collection::vec(hard_coord(), 8),
+            lanes in 0u32..256,
+        ) {
+            prop_assume!(cpu_has_avx2());
+            let len = (first + count).min(tris.len());
+            let corners: Vec<[Vec3; 3]> = tris[..len].iter().map(|&(a, b, c)| [a, b, c]).collect();
+            let tris = crate::Triangles::from_corners(&corners);
+            // One direction: the eight rays share its octant and axis order.
+            let rays: [Ray; 8] =
+                std::array::from_fn(|i| Ray::new(origins[i], d, tmin, f32::INFINITY));
+            let Some(p) = crate::Packet8::new(&rays) else { return Ok(()) };
+            let tmax: [f32; 8] = tmax.try_into().expect("8 bounds");
+            let count = count.min(len - first.min(len));
+            let first = first.min(len);
+            let avx = Avx2::detect().expect("AVX2, kernels on");
+            let mut seen = Vec::new();
+            let mut lane_results = Vec::new();
+            crate::Primitives::intersect_block_lanes(
+                &tris, avx, first as u32, count as u32, &p, lanes, &tmax,
+                |i, mask, out| {
+                    seen.push(i);
+                    lane_results.push((i, mask, out));
+                },
+            );
+            let asked: Vec<usize> = (0..8).filter(|i| lanes >> i & 1 != 0).collect();
+            prop_assert_eq!(&seen, &asked);
+            for (i, mask, out) in lane_results {
+                lanes_match(mask, &out, |k| {
+                    (k < count).then(|| {
+                        let [a, b, c] = corners[first + k];
+                        raymesh_geometry::intersect_triangle(&rays[i], tmax[i], a, b, c)
+                    })?
+                })?;
+            }
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(2000))]
         /// Triangles named by a list (a k-d tree's leaf, a grid cell;
         /// repeats allowed) gathered into a block give what the scalar
         /// test gives each, lane by lane, bit for bit.
