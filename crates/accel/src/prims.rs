@@ -595,6 +595,8 @@ impl Primitives for Triangles {
             lanes,
             tmax,
             |i, hit, redo, hits| {
+                // The lane's `Ray` only for lanes to redo (which the AVX2
+                // kernel never leaves): from rows, rays are made on demand.
                 if redo == 0 {
                     each(i, hit, hits);
                 } else {

@@ -818,27 +818,25 @@ impl<P: Primitives> Scene<P> {
     }
 
     /// A packet's leaf (`first..first + count`) tested lane by lane for
-    /// the lanes in `lanes` of `p`, as each ray alone would: lane `i`'s
-    /// block test is `test(i, &pre(i), first, count, tmax)`, with `pre(i)`
-    /// the lane's constants for it (made once a lane). Closest hits lower
-    /// the lane's `tmax`; with `ANY`, a lane's first hit ends it (`tmax` to
-    /// `-inf`).
+    /// the lanes in `lanes` of `p`, each lane's ray by the portable block
+    /// test ([`Primitives::intersect_block`]), as each ray alone would be:
+    /// the leaf where the walk has no AVX2 (with it: `Self::leaf_blocks`).
+    /// Closest hits lower the lane's `tmax`; with `ANY`, a lane's first
+    /// hit ends it (`tmax` to `-inf`).
     #[inline(always)]
-    fn leaf_lanes<const ANY: bool, R>(
+    fn leaf_lanes<const ANY: bool>(
         &self,
         p: &Packet8,
         (first, count, lanes): (u32, u32, u32),
         tmax: &mut [f32; LANES],
         best: &mut [Option<(u32, PrimHit)>; LANES],
-        pre: impl Fn(usize) -> R,
-        test: impl Fn(usize, &R, u32, u32, f32) -> (u32, BlockHits),
     ) {
         let mut m = lanes;
         while m != 0 {
             let i = m.trailing_zeros() as usize;
             m &= m - 1;
-            let pre = pre(i);
-            let test = |s, n, t| test(i, &pre, s, n, t);
+            let ray = p.ray(i);
+            let test = |s, n, t| self.prims.intersect_block(s, n, ray, t);
             if !ANY {
                 self.leaf_closest_by(first, count, &mut tmax[i], &mut best[i], test);
             } else if let Some(f) = self.leaf_any_by(first, count, p.tmax()[i], test) {
@@ -1059,14 +1057,7 @@ impl<P: Primitives, const ANY: bool> PacketLeaf for WalkLeaf<'_, '_, P, ANY> {
                 return;
             }
             let _ = avx;
-            scene.leaf_lanes::<ANY, _>(
-                p,
-                (first, count, lanes),
-                tmax,
-                best,
-                |_| (),
-                |i, (), s, n, t| scene.prims.intersect_block(s, n, p.ray(i), t),
-            );
+            scene.leaf_lanes::<ANY>(p, (first, count, lanes), tmax, best);
             return;
         }
         scene
