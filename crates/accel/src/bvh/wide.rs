@@ -532,17 +532,27 @@ impl<const W: usize> WideBvh<W> {
 
 /// Rays a wide stream traversal ([`WideBvh::traverse_stream`]) keeps in
 /// flight over a tree of fewer than [`LARGE_TREE_BYTES`] of nodes, and
-/// over a larger one. More rays hide longer waits on memory, but the
-/// branch predictor then sees more rays' branches interleaved and each
-/// ray's state leaves registers. Pinned, random rays, Mrays/s with two /
-/// four: bunny00 (0.7 MB of nodes) 3.59–3.98 / 3.29–3.52 (one by one
-/// 3.41–3.78), a 600K-triangle sphere (4.7 MB) 1.80–1.95 / 1.89–2.16,
-/// a 2M-triangle one (16 MB) 1.44–1.51 / 1.50–1.73.
-const STREAM_LANES: [usize; 2] = [2, 4];
+/// over a larger one. More rays hide longer waits on memory (each ray's
+/// next node or leaf is prefetched a round ahead, so more rays mean more
+/// fetches under way at once), but the branch predictor then sees more
+/// rays' branches interleaved and each ray's state leaves registers.
+/// Pinned, random rays, Mrays/s with two / four: bunny00 (0.7 MB of
+/// nodes) 3.59–3.98 / 3.29–3.52 (one by one 3.41–3.78), a 600K-triangle
+/// sphere (4.7 MB) 1.80–1.95 / 1.89–2.16, a 2M-triangle one (16 MB)
+/// 1.44–1.51 / 1.50–1.73. Twelve over large trees, `raymesh-ab --stream`
+/// on 262K random rays (closest / any-hit, against four): the 2M-triangle
+/// sphere 1.14 / 1.23 (`bvh4` 1.29 / 1.31; 16 lanes 1.01 / 1.05 against
+/// 8, 12 lanes 1.05 / 1.08 against 8), 600K 1.09 / 1.11, 250K (2 MB,
+/// against two) 1.20 / 1.21. Over small trees two stay: on bunny00 four
+/// lanes ran 0.98 / 1.00 of two on random rays and 0.93 / 0.93 on
+/// diffuse ones, eight 0.95 / 1.01 and 0.86 / 0.93.
+const STREAM_LANES: [usize; 2] = [2, 12];
 
 /// Bytes of nodes from which a wide stream keeps more rays in flight:
-/// past a few megabytes, most node fetches miss the core's own caches.
-const LARGE_TREE_BYTES: usize = 4 << 20;
+/// past about the core's L2, node fetches start to miss it. Twelve lanes
+/// against two on random rays: a 100K-triangle sphere (0.76 MB of nodes)
+/// 1.07 / 1.03, a 250K one (2 MB) 1.20 / 1.21 (bunny00, 0.66 MB: above).
+const LARGE_TREE_BYTES: usize = 1 << 20;
 
 /// One ray of a wide stream traversal in flight: its node test, its
 /// interval, the item it visits next, its stack, and its index in the
@@ -1770,7 +1780,7 @@ mod tests {
     fn stream_walks_each_ray_as_alone() {
         let bvh = leafy_chain(40);
         let ray = |y: f32, tmax: f32| Ray::new(Vec3::new(-2.0, y, 0.2), Vec3::X, 0.0, tmax);
-        let rays = [
+        let mut rays = vec![
             ray(0.1, f32::INFINITY),
             ray(-0.3, f32::INFINITY),
             Ray::new(Vec3::ZERO, Vec3::ZERO, 0.0, 1.0),
@@ -1779,6 +1789,16 @@ mod tests {
             ray(5.0, f32::INFINITY),
             ray(-0.7, f32::INFINITY),
         ];
+        // Twice as many rays as the most lanes, some ending early, so
+        // that every lane count starts rays while others are in flight.
+        rays.extend((0..2 * STREAM_LANES[1]).map(|k| {
+            let tmax = if k % 3 == 0 {
+                40.0 + 15.0 * k as f32
+            } else {
+                f32::INFINITY
+            };
+            ray(-0.95 + 1.9 * k as f32 / (2 * STREAM_LANES[1]) as f32, tmax)
+        }));
         // The fourth ray ends at a leaf of level 10 (as an any-hit query
         // would), the fifth finds `t = 250` in every leaf below level 30,
         // and the others find nothing.
