@@ -854,7 +854,7 @@ impl<P: Primitives> Scene<P> {
     /// rays' data: about 1.3 times the speed of tracing one by one on
     /// incoherent rays (random directions) on bunny00. Over a wide BVH each
     /// step prefetches what its ray visits next, twelve rays in flight
-    /// over trees of 1 MiB of nodes or more: 1.7–2.3 times on random rays
+    /// over trees of 1 MiB of nodes or more: 1.7–2.4 times on random rays
     /// over meshes far larger than the caches (250,000 triangles and up),
     /// level or slower on smaller ones. Both are slower on coherent rays
     /// (a camera's, or shadow rays toward one light) over small meshes,
