@@ -332,3 +332,66 @@ fn bench_reports_every_structure_workload_and_thread_count() {
     assert!(!bad.status.success());
     assert!(String::from_utf8_lossy(&bad.stderr).contains("unknown workload 'sideways'"));
 }
+
+#[test]
+fn bench_traces_as_packets_or_streams() {
+    for (flag, key) in [("--packets", "packets"), ("--stream", "stream")] {
+        let out = run_ok(raymesh().arg("bench").arg(data("sphere.ply")).args([
+            "--size",
+            "16",
+            "--repeat",
+            "1",
+            "--threads",
+            "1",
+            "--accel",
+            "bvh8,bvh-binned",
+            "--workloads",
+            "primary,random",
+            flag,
+            "--json",
+        ]));
+        let rows: Vec<serde_json::Value> = out
+            .lines()
+            .map(|l| serde_json::from_str(l).unwrap())
+            .collect();
+        assert_eq!(rows.len(), 2 * 2, "{flag}: structures × workloads");
+        for r in &rows {
+            assert_eq!(r[key], true, "{flag}: {r}");
+            let other = if key == "packets" {
+                "stream"
+            } else {
+                "packets"
+            };
+            assert_eq!(r[other], false, "{flag}: {r}");
+            assert!(r["closest_mrays_per_s"].as_f64().is_some_and(|v| v > 0.0));
+            assert!(r["any_hit_mrays_per_s"].as_f64().is_some_and(|v| v > 0.0));
+        }
+        let table = run_ok(raymesh().arg("bench").arg(data("sphere.ply")).args([
+            "--size",
+            "8",
+            "--repeat",
+            "1",
+            "--threads",
+            "1",
+            "--accel",
+            "bvh8",
+            "--workloads",
+            "random",
+            flag,
+        ]));
+        let mode = if key == "packets" {
+            "packets of 8"
+        } else {
+            "streams"
+        };
+        assert!(table.contains(&format!("rays traced as {mode}")), "{table}");
+    }
+    let both = raymesh()
+        .arg("bench")
+        .arg(data("sphere.ply"))
+        .args(["--packets", "--stream"])
+        .output()
+        .unwrap();
+    assert!(!both.status.success());
+    assert!(String::from_utf8_lossy(&both.stderr).contains("cannot be used with"));
+}

@@ -1,8 +1,9 @@
 //! `raymesh bench MESH... [--accel LIST|all] [--workloads LIST] [--size N]
-//! [--threads LIST] [--repeat R] [--json] [--spatial-splits [FRACTION]]`: BENCH.md's workloads through
-//! every chosen structure, one table per mesh (or JSON lines).
+//! [--threads LIST] [--repeat R] [--json] [--spatial-splits [FRACTION]]
+//! [--packets | --stream]`: BENCH.md's workloads through every chosen
+//! structure, one table per mesh (or JSON lines).
 
-use crate::cmd::raycast::{count, trace};
+use crate::cmd::raycast::{count, trace, trace_packets, trace_stream};
 use crate::cmd::thread_pool;
 use crate::npy::HitRecord;
 use crate::workload::{make_rays_framing, parse_frame, unpack_ray, Workload};
@@ -53,6 +54,15 @@ pub struct Args {
     /// --optimize`).
     #[arg(long)]
     pub optimize: bool,
+    /// Trace eight consecutive rays at a time as packets (as `raycast
+    /// --packets`): for a camera's rays and shadow rays toward one light.
+    #[arg(long, conflicts_with = "stream")]
+    pub packets: bool,
+    /// Trace each task's rays as a stream, several walking the tree at once
+    /// (as `raycast --stream`): for incoherent rays over meshes larger than
+    /// the caches.
+    #[arg(long)]
+    pub stream: bool,
 }
 
 /// One measured row.
@@ -76,6 +86,8 @@ struct Row {
     triangles_per_ray: f64,
     spatial_splits: f32,
     optimize: bool,
+    packets: bool,
+    stream: bool,
 }
 
 fn parse_list<T: std::str::FromStr<Err = String>>(s: &str) -> Result<Vec<T>> {
@@ -150,6 +162,13 @@ pub fn run(args: &Args) -> Result<()> {
                 (w, r)
             })
             .collect();
+        let trace_with = if args.packets {
+            trace_packets
+        } else if args.stream {
+            trace_stream
+        } else {
+            trace
+        };
         let mut rows = Vec::new();
         for &accel in &accels {
             let build = |pool: &rayon::ThreadPool| {
@@ -172,7 +191,7 @@ pub fn run(args: &Args) -> Result<()> {
                         let mut best = f64::INFINITY;
                         for _ in 0..args.repeat.max(1) {
                             let s = Instant::now();
-                            pool.install(|| trace(&scene, rs, any, &mut hits));
+                            pool.install(|| trace_with(&scene, rs, any, &mut hits));
                             best = best.min(s.elapsed().as_secs_f64());
                         }
                         rs.len() as f64 / best / 1e6
@@ -198,6 +217,8 @@ pub fn run(args: &Args) -> Result<()> {
                         triangles_per_ray: tris_per_ray,
                         spatial_splits: config.spatial_splits,
                         optimize: config.optimize,
+                        packets: args.packets,
+                        stream: args.stream,
                     });
                 }
                 bar.inc(1);
@@ -216,7 +237,12 @@ fn print_rows(rows: &[Row], json: bool, path: &std::path::Path, ntri: usize) -> 
         }
         return Ok(());
     }
-    println!("\n{} ({ntri} triangles)", path.display());
+    let mode = match rows.first() {
+        Some(r) if r.packets => ", rays traced as packets of 8",
+        Some(r) if r.stream => ", rays traced as streams",
+        _ => "",
+    };
+    println!("\n{} ({ntri} triangles{mode})", path.display());
     println!(
         "{:<11} {:<8} {:>3} {:>9} {:>9} {:>7} {:>8} {:>6} {:>6} {:>9} {:>9} {:>8} {:>8}",
         "structure",
