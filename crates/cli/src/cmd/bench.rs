@@ -3,7 +3,7 @@
 //! [--packets | --stream]`: BENCH.md's workloads through every chosen
 //! structure, one table per mesh (or JSON lines).
 
-use crate::cmd::raycast::{count, trace, trace_packets, trace_stream};
+use crate::cmd::raycast::{count, tracer};
 use crate::cmd::thread_pool;
 use crate::npy::HitRecord;
 use crate::workload::{make_rays_framing, parse_frame, unpack_ray, Workload};
@@ -162,13 +162,7 @@ pub fn run(args: &Args) -> Result<()> {
                 (w, r)
             })
             .collect();
-        let trace_with = if args.packets {
-            trace_packets
-        } else if args.stream {
-            trace_stream
-        } else {
-            trace
-        };
+        let trace_with = tracer(args.packets, args.stream);
         let mut rows = Vec::new();
         for &accel in &accels {
             let build = |pool: &rayon::ThreadPool| {

@@ -131,6 +131,22 @@ pub fn trace(scene: &Scene<Triangles>, rays: &[Ray], any_hit: bool, out: &mut [H
         });
 }
 
+/// How `raycast`, and `bench` with the same flags, trace a batch of
+/// rays: [`trace_packets`] with `packets`, else [`trace_stream`] with
+/// `stream`, else [`trace`] (one ray at a time).
+pub fn tracer(
+    packets: bool,
+    stream: bool,
+) -> fn(&Scene<Triangles>, &[Ray], bool, &mut [HitRecord]) {
+    if packets {
+        trace_packets
+    } else if stream {
+        trace_stream
+    } else {
+        trace
+    }
+}
+
 /// A hit record of a hit, or [`HitRecord::MISS`].
 fn record(h: Option<BareHit>) -> HitRecord {
     h.map_or(HitRecord::MISS, |h| HitRecord {
@@ -246,15 +262,7 @@ pub fn run(args: &Args) -> Result<()> {
     let mut best = f64::INFINITY;
     for _ in 0..args.repeat {
         let start = Instant::now();
-        pool.install(|| {
-            if args.packets {
-                trace_packets(&scene, &rays, args.any_hit, &mut hits);
-            } else if args.stream {
-                trace_stream(&scene, &rays, args.any_hit, &mut hits);
-            } else {
-                trace(&scene, &rays, args.any_hit, &mut hits);
-            }
-        });
+        pool.install(|| tracer(args.packets, args.stream)(&scene, &rays, args.any_hit, &mut hits));
         best = best.min(start.elapsed().as_secs_f64() * 1e3);
     }
     let counted = args
