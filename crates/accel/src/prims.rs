@@ -166,6 +166,17 @@ pub trait Primitives: Send + Sync {
     /// kernel) rather than one by one: then a binary BVH's SAH counts its
     /// leaves in blocks (see [`crate::BuildConfig::leaf_block`]).
     const BLOCK_TEST: bool = false;
+    /// Whether the primitives keep the index the user gave each
+    /// ([`Self::stored_index`]) through [`Self::reorder`]: then a scene
+    /// keeps no permutation of its own, and a hit's index is read next
+    /// to the primitive's data, which the hit's test has just loaded.
+    const STORES_INDEX: bool = false;
+    /// The index the user gave the primitive stored at `k`, for types
+    /// that keep it ([`Self::STORES_INDEX`]); `k` for the others.
+    #[inline(always)]
+    fn stored_index(&self, k: u32) -> u32 {
+        k
+    }
     /// Tests primitive `i` against the lanes `lanes` of a packet, lane `k`
     /// over `[tmin, tmax[k]]`, as [`Self::intersect`] tests each lane's
     /// ray: writes the hit of lane `k` to `out[k]` and returns the mask of
@@ -393,8 +404,9 @@ impl Primitives for TriangleMesh {
 /// [`Primitives::intersect_block`] tests at once.
 pub const BLOCK: usize = 8;
 
-/// Triangles stored by their corners, 36 bytes each, as nine rows of
-/// floats (corner × axis, structure-of-arrays) cut into groups of 8
+/// Triangles stored by their corners and the index the user gave each, 40
+/// bytes a triangle, as nine rows of floats (corner × axis,
+/// structure-of-arrays) and a row of indices, cut into groups of 8
 /// triangles: no index buffer to chase, and once a BVH scene has put them
 /// in leaf order, a leaf's triangles are consecutive lanes of each row,
 /// tested together by the SIMD kernel (Wald et al., "Embree", 2014, keep
@@ -408,13 +420,31 @@ pub const BLOCK: usize = 8;
 /// random rays 3.95–4.30 → 4.45–4.58 Mrays/s (one thread, pinned, four
 /// alternations) for 20 more instructions a ray (the second loads and
 /// blends of blocks that straddle two groups).
+///
+/// The index row ([`Self::index`], kept through [`Primitives::reorder`])
+/// spares a scene in leaf order its own permutation from stored to given
+/// indices, which a hit looked up in another array: on random rays that
+/// lookup missed the cache half the time, where the index row lies in
+/// the cache line after the group's last corner row, just loaded by the
+/// hit's block test. The same bytes in all (4 a triangle moved from the
+/// permutation to the rows). `raymesh-ab --accel bvh8` against the
+/// separate permutation, closest / any-hit: random rays one by one
+/// bunny00 1.08–1.10 / 1.10–1.11, the dragon 1.05–1.06 / 1.08, UV spheres
+/// of 600K triangles 1.19 / 1.22 and 2M 1.16 / 1.22; diffuse and primary
+/// rays, one by one or in packets, 0.97–1.02; streams of random rays
+/// (`--stream`) 250K 0.90 / 0.97, 600K 0.96 / 1.01, 2M 0.97 / 1.04: with
+/// twelve rays in flight a stream hides the permutation's misses, and
+/// its closest hits feel the rows' extra tenth.
 #[derive(Clone, Debug, Default)]
 pub struct Triangles {
     /// Triangle `i`'s coordinate `r` (`3 * corner + axis`) is
-    /// `data[72 * (i / 8) + 8 * r + i % 8]`; one zeroed group follows the
-    /// last, so that a block's loads past its lanes never read past the
-    /// end (see [`crate::simd::block_at`]). One allocation, so that one
-    /// bounds check covers a block's loads.
+    /// `data[80 * (i / 8) + 8 * r + i % 8]`, and its index (as
+    /// [`Self::index`] gives it) the bits of `data[80 * (i / 8) + 72 + i %
+    /// 8]` (`f32::from_bits`: moved and copied, never computed with, a
+    /// float keeps its bits); one zeroed group follows the last, so that a
+    /// block's loads past its lanes never read past the end (see
+    /// [`crate::simd::block_at`]). One allocation, so that one bounds
+    /// check covers a block's loads.
     data: Vec<f32>,
     len: usize,
 }
@@ -441,7 +471,13 @@ impl Triangles {
 /// the CPU to the positions on its own: not used there.
 const GATHER_AHEAD: usize = 16;
 
-/// Where triangle `i`'s coordinate `r` lies in [`Triangles`]' data.
+/// The row of a group of [`Triangles`] that holds the triangles' indices,
+/// after the nine corner rows.
+const INDEX_ROW: usize = 9;
+const _: () = assert!(GROUP == (INDEX_ROW + 1) * GROUP_SLOTS);
+
+/// Where triangle `i`'s coordinate `r` (or, `r` = [`INDEX_ROW`], index)
+/// lies in [`Triangles`]' data.
 #[inline(always)]
 fn slot_at(i: usize, r: usize) -> usize {
     (i / GROUP_SLOTS) * GROUP + r * GROUP_SLOTS + i % GROUP_SLOTS
@@ -451,7 +487,7 @@ impl Triangles {
     /// Triangles given by their corners.
     #[must_use]
     pub fn from_corners(corners: &[[Vec3; 3]]) -> Self {
-        Self::gather(corners.len(), |i| corners[i], |_| {})
+        Self::gather(corners.len(), |i| corners[i], |i| i as u32, |_| {})
     }
 
     /// The corners of an indexed mesh's triangles, in the mesh's order.
@@ -462,7 +498,7 @@ impl Triangles {
     pub fn from_mesh(mesh: &TriangleMesh) -> Self {
         // No prefetching (see `GATHER_AHEAD`): in the mesh's own order it
         // cost 9% where the vertices come in about the triangles' order.
-        Self::gather(mesh.len(), |i| mesh.corners(i as u32), |_| {})
+        Self::gather(mesh.len(), |i| mesh.corners(i as u32), |i| i as u32, |_| {})
     }
 
     /// The corners of an indexed mesh's triangles in the order `order`
@@ -479,11 +515,11 @@ impl Triangles {
                 mesh.prefetch_corners(t as usize, true);
             }
         };
-        Self::gather(order.len(), |k| mesh.corners(order[k]), ahead)
+        Self::gather(order.len(), |k| mesh.corners(order[k]), |k| order[k], ahead)
     }
 
-    /// `len` triangles, triangle `i`'s corners given by `corners(i)`,
-    /// filled in parallel (the zeroed allocation is only touched there),
+    /// `len` triangles, triangle `i`'s corners given by `corners(i)` and
+    /// its index by `index(i)`, filled in parallel (the zeroed allocation is only touched there),
     /// each task a run of whole groups: every triangle's corners are
     /// fetched once (from an indexed mesh: three indices and three
     /// positions, wherever they lie) and written to one run of memory.
@@ -492,6 +528,7 @@ impl Triangles {
     fn gather(
         len: usize,
         corners: impl Fn(usize) -> [Vec3; 3] + Sync,
+        index: impl Fn(usize) -> u32 + Sync,
         ahead: impl Fn(usize) + Sync,
     ) -> Self {
         /// Triangles a task fills: whole groups.
@@ -511,13 +548,14 @@ impl Triangles {
                     if n == 0 {
                         break;
                     }
-                    let mut rows = [[0.0f32; GROUP_SLOTS]; 9];
+                    let mut rows = [[0.0f32; GROUP_SLOTS]; GROUP / GROUP_SLOTS];
                     for k in 0..n {
                         ahead(first + k);
                         let c = corners(first + k);
-                        for (r, row) in rows.iter_mut().enumerate() {
+                        for (r, row) in rows[..INDEX_ROW].iter_mut().enumerate() {
                             row[k] = c[r / 3][r % 3];
                         }
+                        rows[INDEX_ROW][k] = f32::from_bits(index(first + k));
                     }
                     group.copy_from_slice(rows.as_flattened());
                 }
@@ -539,7 +577,17 @@ impl Triangles {
         ]
     }
 
-    /// Bytes of the corner rows.
+    /// The index the user gave triangle `i` (its place in the mesh or the
+    /// list it was made from), which reordering keeps.
+    #[inline(always)]
+    #[must_use]
+    pub fn index(&self, i: u32) -> u32 {
+        let i = i as usize;
+        assert!(i < self.len);
+        self.data[slot_at(i, INDEX_ROW)].to_bits()
+    }
+
+    /// Bytes of the rows.
     #[must_use]
     pub fn bytes(&self) -> usize {
         self.data.len() * 4
@@ -548,6 +596,11 @@ impl Triangles {
 
 impl Primitives for Triangles {
     const BLOCK_TEST: bool = true;
+    const STORES_INDEX: bool = true;
+    #[inline(always)]
+    fn stored_index(&self, k: u32) -> u32 {
+        self.index(k)
+    }
     #[inline]
     fn len(&self) -> usize {
         self.len
@@ -728,11 +781,16 @@ impl Primitives for Triangles {
     fn reorder(&mut self, order: &[u32]) -> bool {
         if order.len() != self.len {
             // Some triangles twice (spatial splits): new rows.
-            *self = Self::gather(order.len(), |k| self.corners(order[k]), |_| {});
+            *self = Self::gather(
+                order.len(),
+                |k| self.corners(order[k]),
+                |k| self.index(order[k]),
+                |_| {},
+            );
             return true;
         }
-        // One row at a time: the copy costs one row of memory, not nine.
-        for r in 0..9 {
+        // One row at a time: the copy costs one row of memory, not ten.
+        for r in 0..GROUP / GROUP_SLOTS {
             let row: Vec<f32> = order
                 .par_iter()
                 .map(|&i| self.data[slot_at(i as usize, r)])
@@ -837,6 +895,11 @@ impl Primitives for Shapes {
 
 impl<P: Primitives + ?Sized> Primitives for &P {
     const BLOCK_TEST: bool = P::BLOCK_TEST;
+    const STORES_INDEX: bool = P::STORES_INDEX;
+    #[inline(always)]
+    fn stored_index(&self, k: u32) -> u32 {
+        (**self).stored_index(k)
+    }
     fn len(&self) -> usize {
         (**self).len()
     }
@@ -925,9 +988,10 @@ mod tests {
     use proptest::prelude::*;
 
     proptest! {
-        /// The grouped rows give back every triangle's corners, whatever
-        /// the count (partial last group, none), after a reordering, and
-        /// after one that repeats triangles (spatial splits).
+        /// The grouped rows give back every triangle's corners and index,
+        /// whatever the count (partial last group, none), after a
+        /// reordering, and after one that repeats triangles (spatial
+        /// splits) on top of it: the indices are the first list's.
         #[test]
         fn triangles_keep_their_corners(
             coords in proptest::collection::vec(-1e3f32..1e3, 0..40 * 9),
@@ -942,6 +1006,7 @@ mod tests {
             prop_assert_eq!(tris.len, n);
             for (i, c) in corners.iter().enumerate() {
                 prop_assert_eq!(tris.corners(i as u32), *c);
+                prop_assert_eq!(tris.index(i as u32), i as u32);
             }
             // A permutation from the seed (a multiplicative shuffle).
             let mut order: Vec<u32> = (0..n as u32).collect();
@@ -953,6 +1018,7 @@ mod tests {
             prop_assert!(tris.reorder(&order));
             for (k, &i) in order.iter().enumerate() {
                 prop_assert_eq!(tris.corners(k as u32), corners[i as usize]);
+                prop_assert_eq!(tris.index(k as u32), i);
             }
             // Repeats: every slot's triangle, then the first again.
             let twice: Vec<u32> = (0..n as u32).chain((n > 0).then_some(0)).collect();
@@ -961,14 +1027,15 @@ mod tests {
             prop_assert_eq!(tris.len, twice.len());
             for (k, &i) in twice.iter().enumerate() {
                 prop_assert_eq!(tris.corners(k as u32), before.corners(i));
+                prop_assert_eq!(tris.index(k as u32), order[i as usize]);
             }
         }
     }
 
     /// Rows gathered from an indexed mesh in a given order, over several
     /// of the gather's parallel runs and a partial last group: each slot
-    /// holds its triangle's corners, and every float past the last
-    /// triangle stays zero (the block kernels read whole groups).
+    /// holds its triangle's corners and mesh index, and every float past
+    /// the last triangle stays zero (the block kernels read whole groups).
     #[test]
     fn rows_gather_in_order_across_runs() {
         let mut next = crate::test_util::xorshift(0x0bad_5eed);
@@ -985,9 +1052,10 @@ mod tests {
             assert_eq!(rows.len, n);
             for (k, &i) in order.iter().enumerate() {
                 assert_eq!(rows.corners(k as u32), mesh.corners(i), "n {n}, slot {k}");
+                assert_eq!(rows.index(k as u32), i, "n {n}, slot {k}");
             }
             let used: std::collections::HashSet<usize> = (0..n)
-                .flat_map(|k| (0..9).map(move |r| slot_at(k, r)))
+                .flat_map(|k| (0..=INDEX_ROW).map(move |r| slot_at(k, r)))
                 .collect();
             for (at, &x) in rows.data.iter().enumerate() {
                 assert!(used.contains(&at) || x == 0.0, "n {n}: float {at} is {x}");

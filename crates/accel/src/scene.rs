@@ -92,8 +92,11 @@ pub struct Scene<P> {
     accel: Accel,
     bounds: Aabb,
     build_ms: f64,
-    /// When the primitives were reordered to the BVH's leaf order: the
-    /// original index of each stored primitive (what hits report).
+    /// Whether the primitives are stored in the BVH's leaf order.
+    leaf_order: bool,
+    /// When they are, and their type does not keep the index the user
+    /// gave each ([`Primitives::STORES_INDEX`]): that index for each
+    /// stored primitive (what hits report).
     original: Option<Vec<u32>>,
 }
 
@@ -139,10 +142,14 @@ impl<P: Primitives> Scene<P> {
             }
         };
         let mut prims = prims;
+        let mut leaf_order = false;
         let mut original = None;
         if let Some(order) = accel.leaf_order() {
             if prims.reorder(order) {
-                original = accel.take_leaf_order();
+                leaf_order = true;
+                // Taken from the structure either way: primitives that
+                // keep their indices need it no more.
+                original = accel.take_leaf_order().filter(|_| !P::STORES_INDEX);
             }
         }
         let build_ms = start.elapsed().as_secs_f64() * 1e3;
@@ -151,6 +158,7 @@ impl<P: Primitives> Scene<P> {
             accel,
             bounds,
             build_ms,
+            leaf_order,
             original,
         }
     }
@@ -165,6 +173,9 @@ impl<P: Primitives> Scene<P> {
     #[inline]
     #[must_use]
     pub fn original_index(&self, k: u32) -> u32 {
+        if P::STORES_INDEX {
+            return self.prims.stored_index(k);
+        }
         self.original.as_ref().map_or(k, |o| o[k as usize])
     }
 
@@ -193,7 +204,9 @@ impl<P: Primitives> Scene<P> {
     /// leaf is a block of consecutive primitives, tested at once with
     /// [`Primitives::intersect_block`].
     fn wide_blocks(&self) -> Option<WideRef<'_>> {
-        self.original.as_ref()?;
+        if !self.leaf_order {
+            return None;
+        }
         match &self.accel {
             Accel::Bvh(b, _) => Some(WideRef::W2(b)),
             Accel::Bvh4(b) => Some(WideRef::W4(b)),
@@ -390,12 +403,20 @@ impl<P: Primitives> Scene<P> {
     /// than the user gave it: ties go to the least index.
     #[inline(always)]
     fn offer(&self, best: &mut Option<(u32, PrimHit)>, tmax: &mut f32, prim: u32, h: PrimHit) {
-        if h.t < *tmax
-            || best.is_none_or(|(b, _)| self.original_index(prim) < self.original_index(b))
-        {
+        if h.t < *tmax || best.is_none_or(|(b, _)| self.tie_goes_to(prim, b)) {
             *tmax = h.t;
             *best = Some((prim, h));
         }
+    }
+
+    /// Whether stored primitive `prim`, hit at the same distance as the
+    /// best so far, `best`, was given the lesser index. Out of the leaf
+    /// loops: ties are rare, and the two index lookups inlined into every
+    /// leaf test cost primary rays' closest hits 2–4%.
+    #[cold]
+    #[inline(never)]
+    fn tie_goes_to(&self, prim: u32, best: u32) -> bool {
+        self.original_index(prim) < self.original_index(best)
     }
 
     /// Tests the leaf of slots `first..first + count` (primitives in leaf
@@ -623,9 +644,14 @@ impl<P: Primitives> Scene<P> {
     }
 
     fn hit(&self, prim: u32, ray: &Ray, h: PrimHit) -> Hit {
+        self.hit_at(prim, self.original_index(prim), ray, h)
+    }
+
+    /// [`Self::hit`] with the primitive's index as given already looked up.
+    fn hit_at(&self, prim: u32, index: u32, ray: &Ray, h: PrimHit) -> Hit {
         Hit {
             t: h.t,
-            prim: self.original_index(prim),
+            prim: index,
             instance: 0,
             u: h.u,
             v: h.v,
@@ -865,7 +891,7 @@ impl<P: Primitives> Scene<P> {
         assert_eq!(rays.len(), out.len(), "one output per ray");
         let best = self.stream(rays, false);
         for ((o, r), b) in out.iter_mut().zip(rays).zip(best) {
-            *o = b.map(|(prim, h)| self.hit(prim, r, h));
+            *o = b.map(|(prim, index, h)| self.hit_at(prim, index, r, h));
         }
     }
 
@@ -875,7 +901,7 @@ impl<P: Primitives> Scene<P> {
         assert_eq!(rays.len(), out.len(), "one output per ray");
         let found = self.stream(rays, true);
         for ((o, r), f) in out.iter_mut().zip(rays).zip(found) {
-            *o = f.map(|(prim, h)| self.hit(prim, r, h));
+            *o = f.map(|(prim, index, h)| self.hit_at(prim, index, r, h));
         }
     }
 
@@ -884,37 +910,54 @@ impl<P: Primitives> Scene<P> {
     pub fn stream_bare(&self, rays: &[Ray], any_hit: bool, out: &mut [Option<BareHit>]) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
         for (o, b) in out.iter_mut().zip(self.stream(rays, any_hit)) {
-            *o = b.map(|(prim, h)| self.bare(prim, h));
+            *o = b.map(|(_, index, h)| BareHit {
+                t: h.t,
+                prim: index,
+                u: h.u,
+                v: h.v,
+            });
         }
     }
 
-    /// The primitives (in storage order) and hits of
-    /// [`Self::intersect_stream`], or with `any_hit` of
-    /// [`Self::any_hit_stream`].
-    fn stream(&self, rays: &[Ray], any_hit: bool) -> Vec<Option<(u32, PrimHit)>> {
+    /// The primitives (in storage order), their indices as given
+    /// ([`Self::original_index`]) and hits of [`Self::intersect_stream`],
+    /// or with `any_hit` of [`Self::any_hit_stream`].
+    fn stream(&self, rays: &[Ray], any_hit: bool) -> Vec<Option<(u32, u32, PrimHit)>> {
         let Some(wide) = self.wide_blocks() else {
             return rays
                 .iter()
                 .map(|r| {
-                    if any_hit {
+                    let found = if any_hit {
                         self.first_hit(r, &mut NoStats)
                     } else {
                         self.closest(r, &mut NoStats)
-                    }
+                    };
+                    found.map(|(prim, h)| (prim, self.original_index(prim), h))
                 })
                 .collect();
         };
         let mut found: Vec<Option<(u32, PrimHit)>> = vec![None; rays.len()];
+        // Each hit's index as given, looked up when the hit is found: the
+        // block's rows, with triangles' indices among them, were just
+        // read. Looked up after the stream, 1,024 rays later, they had
+        // left the cache (a 600K-triangle sphere's random rays, closest
+        // hits, `raymesh-ab --stream` against that: 1.035 and 1.047).
+        let mut index = vec![0u32; rays.len()];
         // A leaf of ray `i`: its first hit, which ends an any-hit query, or
         // its closest so far.
         let mut leaf = |i: usize, first, count, mut tmax| {
             if any_hit {
                 found[i] = self.leaf_any(&rays[i], first, count);
-                if found[i].is_some() {
+                if let Some((prim, _)) = found[i] {
+                    index[i] = self.original_index(prim);
                     return f32::NEG_INFINITY;
                 }
             } else {
+                let before = found[i].map(|(prim, _)| prim);
                 self.leaf_closest(&rays[i], first, count, &mut tmax, &mut found[i]);
+                if let Some((prim, _)) = found[i].filter(|&(prim, _)| Some(prim) != before) {
+                    index[i] = self.original_index(prim);
+                }
             }
             tmax
         };
@@ -927,6 +970,10 @@ impl<P: Primitives> Scene<P> {
             (WideRef::W8(b), true) => b.traverse_stream::<false>(rays, &mut leaf, prefetch),
         }
         found
+            .into_iter()
+            .zip(index)
+            .map(|(f, index)| f.map(|(prim, h)| (prim, index, h)))
+            .collect()
     }
 
     /// Closest hit and what it cost.
@@ -986,14 +1033,17 @@ impl Scene<Triangles> {
             return scene;
         };
         let bounds = accel.bounds();
-        let original = accel.take_leaf_order().expect("a BVH has a leaf order");
-        let prims = Triangles::from_mesh_in_order(mesh, &original);
+        let order = accel.take_leaf_order().expect("a BVH has a leaf order");
+        // The rows keep each triangle's index: the order is not kept.
+        let prims = Triangles::from_mesh_in_order(mesh, &order);
+        drop(order);
         Self {
             prims,
             accel,
             bounds,
             build_ms: start.elapsed().as_secs_f64() * 1e3,
-            original: Some(original),
+            leaf_order: true,
+            original: None,
         }
     }
 }

@@ -796,8 +796,9 @@ unsafe fn le_mask8_avx(a: &[f32; 8], b: &[f32; 8]) -> u32 {
 
 /// Floats of one group of [`GROUP_SLOTS`] triangles in the corner rows'
 /// layout (see [`crate::Triangles`]): their 9 rows (corner × axis) of 8
-/// lanes, one after another.
-pub(crate) const GROUP: usize = 9 * GROUP_SLOTS;
+/// lanes, one after another, then a tenth row of the triangles' indices
+/// (which the kernels never read: a block's loads stop at row 8).
+pub(crate) const GROUP: usize = 10 * GROUP_SLOTS;
 
 /// Triangles a group of the rows' layout holds (one lane each).
 pub(crate) const GROUP_SLOTS: usize = 8;
@@ -808,9 +809,9 @@ pub(crate) const GROUP_SLOTS: usize = 8;
 /// two groups takes its last lanes from (0 when it lies in one group).
 ///
 /// In group `g` (slots `8g..8g + 8`), row `r` lane `l` is float
-/// `72g + 8r + l`. A block's lanes from `first` run on from its row
+/// `80g + 8r + l`. A block's lanes from `first` run on from its row
 /// into the next row's first lanes; those of the next group sit exactly
-/// 64 floats (a group less one row) further on, in the same row.
+/// 72 floats (a group less one row) further on, in the same row.
 #[inline(always)]
 pub(crate) fn block_at(first: usize, count: usize) -> (usize, usize) {
     let (g, l) = (first / GROUP_SLOTS, first % GROUP_SLOTS);
@@ -827,7 +828,7 @@ pub(crate) fn block_at(first: usize, count: usize) -> (usize, usize) {
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 fn block_reach(span: usize) -> usize {
-    (GROUP - GROUP_SLOTS) + span + 8
+    8 * GROUP_SLOTS + span + 8
 }
 
 /// The watertight ray–triangle test of

@@ -201,7 +201,8 @@ pub fn run(args: &Args) -> Result<()> {
                         threads: t,
                         build_ms_1_thread: build_1,
                         build_ms_all_threads: build_all,
-                        bytes_per_triangle: (st.bytes + ntri * 36) as f64 / ntri.max(1) as f64,
+                        bytes_per_triangle: (st.bytes + scene.prims().bytes()) as f64
+                            / ntri.max(1) as f64,
                         nodes: st.nodes,
                         depth: st.depth,
                         sah_cost: st.sah_cost,
