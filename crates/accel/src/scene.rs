@@ -635,12 +635,7 @@ impl<P: Primitives> Scene<P> {
 
     /// The [`BareHit`] of hit `h` of primitive `prim` (in storage order).
     fn bare(&self, prim: u32, h: PrimHit) -> BareHit {
-        BareHit {
-            t: h.t,
-            prim: self.original_index(prim),
-            u: h.u,
-            v: h.v,
-        }
+        bare_at(self.original_index(prim), h)
     }
 
     fn hit(&self, prim: u32, ray: &Ray, h: PrimHit) -> Hit {
@@ -910,12 +905,7 @@ impl<P: Primitives> Scene<P> {
     pub fn stream_bare(&self, rays: &[Ray], any_hit: bool, out: &mut [Option<BareHit>]) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
         for (o, b) in out.iter_mut().zip(self.stream(rays, any_hit)) {
-            *o = b.map(|(_, index, h)| BareHit {
-                t: h.t,
-                prim: index,
-                u: h.u,
-                v: h.v,
-            });
+            *o = b.map(|(_, index, h)| bare_at(index, h));
         }
     }
 
@@ -980,6 +970,16 @@ impl<P: Primitives> Scene<P> {
     pub fn intersect_stats(&self, ray: &Ray) -> (Option<Hit>, CountStats) {
         let mut c = CountStats::default();
         (self.intersect_counted(ray, &mut c), c)
+    }
+}
+
+/// The [`BareHit`] of hit `h` of the primitive given index `index`.
+fn bare_at(index: u32, h: PrimHit) -> BareHit {
+    BareHit {
+        t: h.t,
+        prim: index,
+        u: h.u,
+        v: h.v,
     }
 }
 
