@@ -424,13 +424,13 @@ pub const BLOCK: usize = 8;
 /// The index row ([`Self::index`], kept through [`Primitives::reorder`])
 /// spares a scene in leaf order its own permutation from stored to given
 /// indices, which a hit looked up in another array: on random rays that
-/// lookup missed the cache half the time, where the index row lies in
-/// the cache line after the group's last corner row, just loaded by the
-/// hit's block test. The same bytes in all (4 a triangle moved from the
+/// lookup missed the cache half the time, where the index row lies
+/// right after the group's last corner row, which the hit's block test
+/// has just loaded (in the same cache line, or the next one). The same bytes in all (4 a triangle moved from the
 /// permutation to the rows). `raymesh-ab --accel bvh8` against the
 /// separate permutation, closest / any-hit: random rays one by one
-/// bunny00 1.08–1.10 / 1.10–1.11, the dragon 1.05–1.06 / 1.08, UV spheres
-/// of 600K triangles 1.19 / 1.22 and 2M 1.16 / 1.22; diffuse and primary
+/// bunny00 1.08–1.10 / 1.10–1.11, the dragon 1.05–1.06 / 1.02–1.08, UV
+/// spheres of 600K triangles 1.16–1.19 / 1.19–1.22 and 2M 1.16 / 1.22; diffuse and primary
 /// rays, one by one or in packets, 0.97–1.02; streams of random rays
 /// (`--stream`) 250K 0.90 / 0.97, 600K 0.96 / 1.01, 2M 0.97 / 1.04: with
 /// twelve rays in flight a stream hides the permutation's misses, and
@@ -519,8 +519,8 @@ impl Triangles {
     }
 
     /// `len` triangles, triangle `i`'s corners given by `corners(i)` and
-    /// its index by `index(i)`, filled in parallel (the zeroed allocation is only touched there),
-    /// each task a run of whole groups: every triangle's corners are
+    /// its index by `index(i)`, filled in parallel (the zeroed allocation
+    /// is only touched there), each task a run of whole groups: every triangle's corners are
     /// fetched once (from an indexed mesh: three indices and three
     /// positions, wherever they lie) and written to one run of memory.
     /// `ahead(i)` is called just before `corners(i)`, for prefetching what
