@@ -426,8 +426,8 @@ pub const BLOCK: usize = 8;
 /// indices, which a hit looked up in another array: on random rays that
 /// lookup missed the cache half the time, where the index row lies
 /// right after the group's last corner row, which the hit's block test
-/// has just loaded (in the same cache line, or the next one). The same bytes in all (4 a triangle moved from the
-/// permutation to the rows). `raymesh-ab --accel bvh8` against the
+/// has just loaded, in the same cache line (groups start on one). The same bytes
+/// in all (4 a triangle moved from the permutation to the rows). `raymesh-ab --accel bvh8` against the
 /// separate permutation, closest / any-hit: random rays one by one
 /// bunny00 1.08–1.10 / 1.10–1.11, the dragon 1.05–1.06 / 1.02–1.08, UV
 /// spheres of 600K triangles 1.16–1.19 / 1.19–1.22 and 2M 1.16 / 1.22; diffuse and primary
@@ -437,23 +437,45 @@ pub const BLOCK: usize = 8;
 /// its closest hits feel the rows' extra tenth.
 #[derive(Clone, Debug, Default)]
 pub struct Triangles {
-    /// Triangle `i`'s coordinate `r` (`3 * corner + axis`) is
-    /// `data[80 * (i / 8) + 8 * r + i % 8]`, and its index (as
-    /// [`Self::index`] gives it) the bits of `data[80 * (i / 8) + 72 + i %
-    /// 8]` (`f32::from_bits`: moved and copied, never computed with, a
+    /// In the groups' floats ([`Self::data`]), triangle `i`'s coordinate
+    /// `r` (`3 * corner + axis`) is `data[80 * (i / 8) + 8 * r + i % 8]`,
+    /// and its index (as [`Self::index`] gives it) the bits of `data[80 *
+    /// (i / 8) + 72 + i % 8]` (`f32::from_bits`: moved and copied, never computed with, a
     /// float keeps its bits); one zeroed group follows the last, so that a
     /// block's loads past its lanes never read past the end (see
     /// [`crate::simd::block_at`]). One allocation, so that one bounds
     /// check covers a block's loads.
-    data: Vec<f32>,
+    groups: Vec<Group>,
     len: usize,
 }
+
+/// One group of [`Triangles`]' rows: [`GROUP`] floats, 320 bytes, aligned
+/// to a cache line, so that a group is exactly five lines and the index
+/// row shares its line with the last corner row: a hit's index is read
+/// from a line its block test loaded. In a `Vec<f32>` (16 bytes past a
+/// line, as glibc placed large ones) its last four lanes lay in a sixth
+/// line, which the test does not load. `raymesh-ab --accel bvh8`, random
+/// rays on a 600K-triangle UV sphere, each build the other's baseline:
+/// one by one 1.07–1.10 (closest and any-hit), streams 1.05–1.09;
+/// bunny00 and the dragon, whose rows sit in the L2 cache, 0.96–1.04.
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C, align(64))]
+struct Group([f32; GROUP]);
+
+const _: () = assert!(std::mem::size_of::<Group>() == 4 * GROUP);
+const _: () = assert!(std::mem::align_of::<Group>() == 64);
 
 impl Triangles {
     /// The grouped rows, for the kernels' tests.
     #[cfg(all(test, target_arch = "aarch64", target_feature = "neon"))]
     pub(crate) fn rows(&self) -> &[f32] {
-        &self.data
+        self.data()
+    }
+
+    /// The rows as one run of floats (see the field's layout).
+    #[inline(always)]
+    fn data(&self) -> &[f32] {
+        bytemuck::cast_slice(&self.groups)
     }
 }
 
@@ -534,15 +556,16 @@ impl Triangles {
         /// Triangles a task fills: whole groups.
         const RUN: usize = 4096;
         const { assert!(RUN.is_multiple_of(GROUP_SLOTS)) };
-        let mut data = vec![0.0f32; (len.div_ceil(GROUP_SLOTS) + 1) * GROUP];
-        data.par_chunks_mut(RUN / GROUP_SLOTS * GROUP)
+        let mut groups = vec![Group([0.0; GROUP]); len.div_ceil(GROUP_SLOTS) + 1];
+        groups
+            .par_chunks_mut(RUN / GROUP_SLOTS)
             .enumerate()
             .for_each(|(j, run)| {
                 // A group's rows are filled in registers and stored whole:
                 // each coordinate written to its slot of the run took a
                 // bounds check and the slot's arithmetic (82 instructions
                 // a triangle on bunny00 by callgrind).
-                for (g, group) in run.chunks_exact_mut(GROUP).enumerate() {
+                for (g, group) in run.iter_mut().enumerate() {
                     let first = j * RUN + g * GROUP_SLOTS;
                     let n = GROUP_SLOTS.min(len.saturating_sub(first));
                     if n == 0 {
@@ -557,10 +580,10 @@ impl Triangles {
                         }
                         rows[INDEX_ROW][k] = f32::from_bits(index(first + k));
                     }
-                    group.copy_from_slice(rows.as_flattened());
+                    group.0.copy_from_slice(rows.as_flattened());
                 }
             });
-        Self { data, len }
+        Self { groups, len }
     }
 
     /// The corners of triangle `i`.
@@ -569,7 +592,8 @@ impl Triangles {
     pub fn corners(&self, i: u32) -> [Vec3; 3] {
         let i = i as usize;
         assert!(i < self.len);
-        let r = |k: usize| self.data[slot_at(i, k)];
+        let data = self.data();
+        let r = |k: usize| data[slot_at(i, k)];
         [
             Vec3::new(r(0), r(1), r(2)),
             Vec3::new(r(3), r(4), r(5)),
@@ -584,13 +608,13 @@ impl Triangles {
     pub fn index(&self, i: u32) -> u32 {
         let i = i as usize;
         assert!(i < self.len);
-        self.data[slot_at(i, INDEX_ROW)].to_bits()
+        self.data()[slot_at(i, INDEX_ROW)].to_bits()
     }
 
     /// Bytes of the rows.
     #[must_use]
     pub fn bytes(&self) -> usize {
-        self.data.len() * 4
+        std::mem::size_of_val(self.groups.as_slice())
     }
 }
 
@@ -626,12 +650,12 @@ impl Primitives for Triangles {
         assert!(first + count <= self.len);
         #[cfg(target_arch = "x86_64")]
         if crate::simd::has_avx2() {
-            let block = crate::simd::triangles8(&self.data, first, count, ray, tmax);
+            let block = crate::simd::triangles8(self.data(), first, count, ray, tmax);
             return redo_lanes(self, |k| (first + k) as u32, block, ray, tmax);
         }
         #[cfg(all(target_arch = "aarch64", target_feature = "neon"))]
         if crate::simd::simd_enabled() {
-            let block = crate::neon::triangles8(&self.data, first, count, ray, tmax);
+            let block = crate::neon::triangles8(self.data(), first, count, ray, tmax);
             return redo_lanes(self, |k| (first + k) as u32, block, ray, tmax);
         }
         let mut out = BlockHits::default();
@@ -644,11 +668,12 @@ impl Primitives for Triangles {
     }
     #[inline(always)]
     fn prefetch_block(&self, first: u32) {
-        // The block's lanes in each of the nine rows, when it lies in one
-        // group: the 80 floats from its first (five or six cache lines).
+        // The block's lanes in each of the nine rows: the group's five
+        // cache lines, and the next group's first, which a block that
+        // straddles two takes its last lanes from.
         let (at, _) = block_at(first as usize, 1);
         for off in [0, 16, 32, 48, 64, 79] {
-            crate::simd::prefetch_at(&self.data, at + off);
+            crate::simd::prefetch_at(self.data(), at + off);
         }
     }
     #[inline(always)]
@@ -666,7 +691,7 @@ impl Primitives for Triangles {
             let count = (count as usize).min(BLOCK);
             let first = first as usize;
             assert!(first + count <= self.len);
-            let block = crate::simd::triangles8_pre(avx, &self.data, first, count, pre, tmax);
+            let block = crate::simd::triangles8_pre(avx, self.data(), first, count, pre, tmax);
             redo_lanes(self, |k| (first + k) as u32, block, ray, tmax)
         }
         #[cfg(not(target_arch = "x86_64"))]
@@ -693,7 +718,7 @@ impl Primitives for Triangles {
         assert!(first + count <= self.len);
         crate::simd::triangles8_lanes(
             avx,
-            &self.data,
+            self.data(),
             first,
             count,
             p,
@@ -729,7 +754,7 @@ impl Primitives for Triangles {
                 // The triangle's 9 coordinates, 8 floats apart: one slice,
                 // one bounds check.
                 let at = slot_at(i, 0);
-                let coords = &self.data[at..=at + 8 * GROUP_SLOTS];
+                let coords = &self.data()[at..=at + 8 * GROUP_SLOTS];
                 for (r, row) in rows.iter_mut().enumerate() {
                     row[k] = coords[r * GROUP_SLOTS];
                 }
@@ -791,15 +816,16 @@ impl Primitives for Triangles {
         }
         // One row at a time: the copy costs one row of memory, not ten.
         for r in 0..GROUP / GROUP_SLOTS {
+            let data = self.data();
             let row: Vec<f32> = order
                 .par_iter()
-                .map(|&i| self.data[slot_at(i as usize, r)])
+                .map(|&i| data[slot_at(i as usize, r)])
                 .collect();
-            self.data
-                .par_chunks_mut(GROUP)
+            self.groups
+                .par_iter_mut()
                 .zip(row.par_chunks(GROUP_SLOTS))
                 .for_each(|(group, lanes)| {
-                    group[r * GROUP_SLOTS..][..lanes.len()].copy_from_slice(lanes);
+                    group.0[r * GROUP_SLOTS..][..lanes.len()].copy_from_slice(lanes);
                 });
         }
         true
@@ -1057,7 +1083,7 @@ mod tests {
             let used: std::collections::HashSet<usize> = (0..n)
                 .flat_map(|k| (0..=INDEX_ROW).map(move |r| slot_at(k, r)))
                 .collect();
-            for (at, &x) in rows.data.iter().enumerate() {
+            for (at, &x) in rows.data().iter().enumerate() {
                 assert!(used.contains(&at) || x == 0.0, "n {n}: float {at} is {x}");
             }
             // The gather's prefetch hint takes any index, in range or not.
