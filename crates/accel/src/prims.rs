@@ -426,8 +426,9 @@ pub const BLOCK: usize = 8;
 /// indices, which a hit looked up in another array: on random rays that
 /// lookup missed the cache half the time, where the index row lies
 /// right after the group's last corner row, which the hit's block test
-/// has just loaded, in the same cache line (groups start on one). The same bytes
-/// in all (4 a triangle moved from the permutation to the rows). `raymesh-ab --accel bvh8` against the
+/// has just loaded, in the same cache line (groups start on one). The
+/// same bytes in all (4 a triangle moved from the permutation to the
+/// rows). `raymesh-ab --accel bvh8` against the
 /// separate permutation, closest / any-hit: random rays one by one
 /// bunny00 1.08–1.10 / 1.10–1.11, the dragon 1.05–1.06 / 1.02–1.08, UV
 /// spheres of 600K triangles 1.16–1.19 / 1.19–1.22 and 2M 1.16 / 1.22; diffuse and primary
@@ -440,8 +441,8 @@ pub struct Triangles {
     /// In the groups' floats ([`Self::data`]), triangle `i`'s coordinate
     /// `r` (`3 * corner + axis`) is `data[80 * (i / 8) + 8 * r + i % 8]`,
     /// and its index (as [`Self::index`] gives it) the bits of `data[80 *
-    /// (i / 8) + 72 + i % 8]` (`f32::from_bits`: moved and copied, never computed with, a
-    /// float keeps its bits); one zeroed group follows the last, so that a
+    /// (i / 8) + 72 + i % 8]` (`f32::from_bits`: moved and copied, never
+    /// computed with, a float keeps its bits); one zeroed group follows the last, so that a
     /// block's loads past its lanes never read past the end (see
     /// [`crate::simd::block_at`]). One allocation, so that one bounds
     /// check covers a block's loads.
@@ -457,7 +458,7 @@ pub struct Triangles {
 /// line, which the test does not load. `raymesh-ab --accel bvh8`, random
 /// rays on a 600K-triangle UV sphere, each build the other's baseline:
 /// one by one 1.07–1.10 (closest and any-hit), streams 1.05–1.09;
-/// bunny00 and the dragon, whose rows sit in the L2 cache, 0.96–1.04.
+/// bunny00 and the dragon, whose rows sit in the L2 cache, 0.92–1.05.
 #[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 #[repr(C, align(64))]
 struct Group([f32; GROUP]);
