@@ -1453,7 +1453,8 @@ impl<'a> WalkStack<'a> {
     ///
     /// The moves are out of line (cold) and are handed the fields they
     /// touch, not `self`: a call given `&mut self` takes the stack's
-    /// address, and `len` would live in memory again (see [`WalkStack`]).
+    /// address, which can put `len` back in memory (see [`WalkStack`];
+    /// measured only together with the borrowed array).
     #[inline(always)]
     fn spill(&mut self) {
         spill_items(&self.items[..self.len], &mut self.spill);
