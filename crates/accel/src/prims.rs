@@ -542,9 +542,9 @@ impl Triangles {
     }
 
     /// `len` triangles, triangle `i`'s corners given by `corners(i)` and
-    /// its index by `index(i)`, filled in parallel (the zeroed allocation
-    /// is only touched there), each task a run of whole groups: every triangle's corners are
-    /// fetched once (from an indexed mesh: three indices and three
+    /// its index by `index(i)`, each group made in parallel and written
+    /// once, in place, each task a run of whole groups: every triangle's
+    /// corners are fetched once (from an indexed mesh: three indices and three
     /// positions, wherever they lie) and written to one run of memory.
     /// `ahead(i)` is called just before `corners(i)`, for prefetching what
     /// later triangles read ([`GATHER_AHEAD`]).
@@ -554,36 +554,42 @@ impl Triangles {
         index: impl Fn(usize) -> u32 + Sync,
         ahead: impl Fn(usize) + Sync,
     ) -> Self {
-        /// Triangles a task fills: whole groups.
+        /// Triangles a task fills at least: whole groups.
         const RUN: usize = 4096;
         const { assert!(RUN.is_multiple_of(GROUP_SLOTS)) };
-        let mut groups = vec![Group([0.0; GROUP]); len.div_ceil(GROUP_SLOTS) + 1];
-        groups
-            .par_chunks_mut(RUN / GROUP_SLOTS)
-            .enumerate()
-            .for_each(|(j, run)| {
+        // Collected in place, in parallel: `vec![group; n]` of a type of
+        // our own is filled element by element on the calling thread
+        // before the tasks start (only zeros of the standard types come
+        // from a zeroed allocation), a pass over the whole array that no
+        // other thread shares. The pig's gather: 0.114 -> 0.095 ms at one
+        // thread, 0.116 -> 0.096 ms at two.
+        let mut groups = Vec::with_capacity(len.div_ceil(GROUP_SLOTS) + 1);
+        (0..len.div_ceil(GROUP_SLOTS) + 1)
+            .into_par_iter()
+            .with_min_len(RUN / GROUP_SLOTS)
+            .map(|g| {
                 // A group's rows are filled in registers and stored whole:
-                // each coordinate written to its slot of the run took a
+                // each coordinate written to its slot of the array took a
                 // bounds check and the slot's arithmetic (82 instructions
-                // a triangle on bunny00 by callgrind).
-                for (g, group) in run.iter_mut().enumerate() {
-                    let first = j * RUN + g * GROUP_SLOTS;
-                    let n = GROUP_SLOTS.min(len.saturating_sub(first));
-                    if n == 0 {
-                        break;
+                // a triangle on bunny00 by callgrind). The group past the
+                // last triangle (and a last group's unused lanes) stay
+                // zero.
+                let first = g * GROUP_SLOTS;
+                let n = GROUP_SLOTS.min(len.saturating_sub(first));
+                let mut rows = [[0.0f32; GROUP_SLOTS]; GROUP / GROUP_SLOTS];
+                for k in 0..n {
+                    ahead(first + k);
+                    let c = corners(first + k);
+                    for (r, row) in rows[..INDEX_ROW].iter_mut().enumerate() {
+                        row[k] = c[r / 3][r % 3];
                     }
-                    let mut rows = [[0.0f32; GROUP_SLOTS]; GROUP / GROUP_SLOTS];
-                    for k in 0..n {
-                        ahead(first + k);
-                        let c = corners(first + k);
-                        for (r, row) in rows[..INDEX_ROW].iter_mut().enumerate() {
-                            row[k] = c[r / 3][r % 3];
-                        }
-                        rows[INDEX_ROW][k] = f32::from_bits(index(first + k));
-                    }
-                    group.0.copy_from_slice(rows.as_flattened());
+                    rows[INDEX_ROW][k] = f32::from_bits(index(first + k));
                 }
-            });
+                let mut group = Group([0.0; GROUP]);
+                group.0.copy_from_slice(rows.as_flattened());
+                group
+            })
+            .collect_into_vec(&mut groups);
         Self { groups, len }
     }
 
