@@ -1026,17 +1026,16 @@ impl Scene<Triangles> {
         let start = Instant::now();
         let config = &leaf_blocks::<Triangles>(kind, config);
         let clip = |i, within, axis, pos| mesh.clip(i, within, axis, pos);
-        let built = Accel::build_bvh_clipped(kind, mesh.len(), &|i| mesh.bounds(i), &clip, config);
-        let Some(mut accel) = built else {
+        // The rows keep each triangle's index: the order is not kept.
+        let gather = |order: &[u32]| Triangles::from_mesh_in_order(mesh, order);
+        let bounds_of = |i| mesh.bounds(i);
+        let built = Accel::build_bvh_gathering(kind, mesh.len(), &bounds_of, &clip, config, gather);
+        let Some((accel, prims)) = built else {
             let mut scene = Self::build_with(Triangles::from_mesh(mesh), kind, config);
             scene.build_ms = start.elapsed().as_secs_f64() * 1e3;
             return scene;
         };
         let bounds = accel.bounds();
-        let order = accel.take_leaf_order().expect("a BVH has a leaf order");
-        // The rows keep each triangle's index: the order is not kept.
-        let prims = Triangles::from_mesh_in_order(mesh, &order);
-        drop(order);
         Self {
             prims,
             accel,
