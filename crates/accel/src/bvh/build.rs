@@ -40,8 +40,13 @@ pub enum BvhBuilder {
 const PAR_SUBTREE: usize = 4096;
 
 /// Nodes with at least twice this many primitives bin and bound their
-/// primitives in parallel chunks of this many.
-const PAR_CHUNK: usize = 16 * 1024;
+/// primitives in parallel chunks of this many. At 16K, the root of a mesh
+/// of 16K to 32K triangles (the pig, the dragon) was binned and
+/// partitioned on one thread while the other waited; at 8K
+/// (`raymesh-peers --peers none`, best of 40 builds, 5 alternations,
+/// medians, two threads) the pig builds in 0.952 of the time, the dragon
+/// 0.982, polygon_mesh 0.966, bunny00 0.985; one thread 0.995-1.008.
+const PAR_CHUNK: usize = 8 * 1024;
 
 /// A primitive as the builders move it: its box and its index, 32 bytes.
 /// Builders partition these in place, so that every pass over a node
