@@ -118,8 +118,47 @@ fn incoherent_rays(m: &TriangleMesh, n: usize, seed: u64) -> Vec<Ray> {
     rays
 }
 
+/// Runs of camera-like rays (eight and more from near one point, in one
+/// octant with one dominant axis, aimed across the mesh's box: the closest
+/// hits' streams walk such runs of eight as packets) mixed with
+/// incoherent rays, so that runs start on and off a multiple of eight,
+/// end mid-run, and share a stream with rays traced as before.
+fn mixed_rays(m: &TriangleMesh, seed: u64) -> Vec<Ray> {
+    let b = m.positions.iter().fold(Aabb::EMPTY, |a, p| a.grow(*p));
+    let (c, d) = (b.centroid(), b.diagonal().max(1e-3));
+    let mut u = uniform(seed);
+    let incoherent = incoherent_rays(m, 40, seed ^ 0x9e37);
+    let mut rays = Vec::new();
+    for run in 0..12 {
+        // A direction with every component away from zero, in the run's
+        // octant; the lanes stray from it by less than its smallest one.
+        let sign = |bit: u32| if run >> bit & 1 == 0 { 1.0 } else { -1.0 };
+        let base = Vec3::new(sign(0), 0.5 * sign(1), 0.3 * sign(2));
+        let o = c - base * d;
+        for _ in 0..8 + run % 5 {
+            let jitter = Vec3::new(u() - 0.5, u() - 0.5, u() - 0.5) * 0.1;
+            let tmax = if run % 4 == 3 {
+                d * (0.8 + u())
+            } else {
+                f32::INFINITY
+            };
+            rays.push(Ray::new(o + jitter * d, base + jitter, 0.0, tmax));
+        }
+        rays.extend_from_slice(&incoherent[run * 3..run * 3 + run % 4]);
+    }
+    rays
+}
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: 64, failure_persistence: None, ..ProptestConfig::default() })]
+
+    #[test]
+    fn coherent_runs_in_streams(tris in proptest::collection::vec((point(), point(), point()), 1..150),
+                                seed in any::<u64>()) {
+        let m = tri_mesh(&soup(tris));
+        let rays = mixed_rays(&m, seed);
+        check_mesh(&m, &rays);
+    }
 
     #[test]
     fn random_soups(tris in proptest::collection::vec((point(), point(), point()), 0..150),
@@ -160,6 +199,9 @@ fn real_meshes() {
         let rays = incoherent_rays(&m, 700, name.len() as u64);
         let hits = check_mesh(&m, &rays);
         assert!(hits > rays.len() / 10, "{name}: only {hits} hits");
+        let rays = mixed_rays(&m, name.len() as u64);
+        let hits = check_mesh(&m, &rays);
+        assert!(hits > rays.len() / 4, "{name}: only {hits} hits in runs");
     }
 }
 

@@ -53,8 +53,11 @@ pub struct Args {
     /// of `Scene::intersect_stream` and `Scene::any_hit_stream` without
     /// their normals): a few rays walk the tree at once,
     /// interleaved, which hides memory latency on incoherent rays (random
-    /// directions), most on meshes far larger than the caches; slower on
-    /// coherent ones. BVHs only (bvh-median, bvh-binned, bvh-sweep, bvh4,
+    /// directions), most on meshes far larger than the caches. Over bvh4
+    /// and bvh8, closest hits' runs of eight coherent rays (one octant, as
+    /// a camera's) walk the tree as packets; without that, interleaving is
+    /// slower than one by one on coherent rays (and the any-hit stream
+    /// still is). BVHs only (bvh-median, bvh-binned, bvh-sweep, bvh4,
     /// bvh8); other structures trace one by one. Same hits, bit for bit.
     #[arg(long, conflicts_with = "packets")]
     pub stream: bool,
