@@ -889,7 +889,7 @@ impl<P: Primitives> Scene<P> {
     /// --stream`. Other structures trace one by one.
     pub fn intersect_stream(&self, rays: &[Ray], out: &mut [Option<Hit>]) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
-        let best = self.stream(rays, false);
+        let best = self.stream(rays, false, true);
         for ((o, r), b) in out.iter_mut().zip(rays).zip(best) {
             *o = b.map(|(prim, index, h)| self.hit_at(prim, index, r, h));
         }
@@ -899,9 +899,24 @@ impl<P: Primitives> Scene<P> {
     /// [`Self::intersect_stream`] traces them.
     pub fn any_hit_stream(&self, rays: &[Ray], out: &mut [Option<Hit>]) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
-        let found = self.stream(rays, true);
+        let found = self.stream(rays, true, false);
         for ((o, r), f) in out.iter_mut().zip(rays).zip(found) {
             *o = f.map(|(prim, index, h)| self.hit_at(prim, index, r, h));
+        }
+    }
+
+    /// Whether each ray hits anything: `out[i]` is [`Self::occluded`] of
+    /// `rays[i]` (shadow rays, which need no hit). Traced as
+    /// [`Self::intersect_stream`] traces closest hits: over a wide BVH each
+    /// run of eight rays that makes a packet walks the tree as one (each
+    /// lane stopping at its first hit, whichever that is: whether it hits
+    /// is the one-ray answer), the other rays interleaved. Where a hit is
+    /// wanted too, [`Self::any_hit_stream`] gives the one-ray hits, without
+    /// packets.
+    pub fn occluded_stream(&self, rays: &[Ray], out: &mut [bool]) {
+        assert_eq!(rays.len(), out.len(), "one output per ray");
+        for (o, f) in out.iter_mut().zip(self.stream(rays, true, true)) {
+            *o = f.is_some();
         }
     }
 
@@ -909,7 +924,7 @@ impl<P: Primitives> Scene<P> {
     /// [`Self::any_hit_stream`]) without the normals: the same hits.
     pub fn stream_bare(&self, rays: &[Ray], any_hit: bool, out: &mut [Option<BareHit>]) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
-        for (o, b) in out.iter_mut().zip(self.stream(rays, any_hit)) {
+        for (o, b) in out.iter_mut().zip(self.stream(rays, any_hit, !any_hit)) {
             *o = b.map(|(_, index, h)| bare_at(index, h));
         }
     }
@@ -918,15 +933,21 @@ impl<P: Primitives> Scene<P> {
     /// ([`Self::original_index`]) and hits of [`Self::intersect_stream`],
     /// or with `any_hit` of [`Self::any_hit_stream`].
     ///
-    /// Closest hits: each run of eight rays (from the stream's start) that
-    /// makes a packet ([`Packet8`]: one octant and axis order, as a
+    /// With `packets`, each run of eight rays (from the stream's start)
+    /// that makes a packet ([`Packet8`]: one octant and axis order, as a
     /// camera's neighbouring pixels or shadow rays toward one light do)
-    /// walks a wide BVH as one, which gives each ray its one-by-one hit
-    /// bit for bit; the other rays are interleaved as before. Any hits
-    /// are not: a packet's lane may find another hit than the ray alone.
-    fn stream(&self, rays: &[Ray], any_hit: bool) -> Vec<Option<(u32, u32, PrimHit)>> {
+    /// walks a wide BVH as one; the other rays are interleaved as before.
+    /// A packet gives each ray its one-by-one closest hit bit for bit, but
+    /// with `any_hit` only whether it hits (a lane may find another hit
+    /// than the ray alone): [`Self::occluded_stream`]'s answer.
+    fn stream(
+        &self,
+        rays: &[Ray],
+        any_hit: bool,
+        packets: bool,
+    ) -> Vec<Option<(u32, u32, PrimHit)>> {
         let wide = match self.wide_blocks() {
-            Some(w @ (WideRef::W4(_) | WideRef::W8(_))) if !any_hit => w,
+            Some(w @ (WideRef::W4(_) | WideRef::W8(_))) if packets => w,
             _ => return self.stream_each(rays, any_hit),
         };
         let mut out = vec![None; rays.len()];
@@ -934,7 +955,12 @@ impl<P: Primitives> Scene<P> {
         for (c, chunk) in rays.chunks(LANES).enumerate() {
             match <&[Ray; LANES]>::try_from(chunk) {
                 Ok(eight) if Packet8::coherent(eight) => {
-                    let best = self.walk_packet::<false>(wide, &Packet8::build(eight));
+                    let packet = Packet8::build(eight);
+                    let best = if any_hit {
+                        self.walk_packet::<true>(wide, &packet)
+                    } else {
+                        self.walk_packet::<false>(wide, &packet)
+                    };
                     for (o, b) in out[c * LANES..][..LANES].iter_mut().zip(best) {
                         *o = b.map(|(prim, h)| (prim, self.original_index(prim), h));
                     }

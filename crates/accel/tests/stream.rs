@@ -1,7 +1,8 @@
 //! Rays traced as a stream ([`Scene::intersect_stream`],
 //! [`Scene::any_hit_stream`]) give, ray by ray, what each ray traced alone
 //! gives: the same primitive and the same bits of `t`, `u`, `v` and the
-//! normal. Incoherent rays (random origins and directions, rays from inside
+//! normal; [`Scene::occluded_stream`] gives each ray's
+//! [`Surface::occluded`]. Incoherent rays (random origins and directions, rays from inside
 //! the box, rays at vertices and edges, short and invalid rays) over random
 //! soups, spheres and mixes, real meshes and the hard cases, in streams of
 //! every length around the number of rays in flight.
@@ -37,6 +38,8 @@ fn check<P: Primitives>(s: &Scene<P>, rays: &[Ray], what: &str) -> usize {
         s.intersect_stream(rays, &mut got);
         let mut any = vec![None; n];
         s.any_hit_stream(rays, &mut any);
+        let mut occluded = vec![false; n];
+        s.occluded_stream(rays, &mut occluded);
         let (mut bare, mut bare_any) = (vec![None; n], vec![None; n]);
         s.stream_bare(rays, false, &mut bare);
         s.stream_bare(rays, true, &mut bare_any);
@@ -46,6 +49,11 @@ fn check<P: Primitives>(s: &Scene<P>, rays: &[Ray], what: &str) -> usize {
                 key(any[i]),
                 key(s.any_hit(r)),
                 "{what}: any hit, ray {i}: {r:?}"
+            );
+            assert_eq!(
+                occluded[i],
+                s.occluded(r),
+                "{what}: occluded, ray {i}: {r:?}"
             );
             assert_eq!(bare_bits(bare[i]), bare_of(got[i]), "{what}: bare, ray {i}");
             assert_eq!(

@@ -232,13 +232,24 @@ impl Engine for Raymesh {
                 |r| hit(self.scene.intersect_bare(&ray(r))),
             );
         }
+        if run.stream && any {
+            // Occlusion, as Embree's `rtcOccluded1M` answers it.
+            return run.run_chunks(rays, |rays, out| {
+                let rays: Vec<_> = rays.iter().map(ray).collect();
+                let mut occluded = vec![false; rays.len()];
+                self.scene.occluded_stream(&rays, &mut occluded);
+                for (o, hit) in out.iter_mut().zip(occluded) {
+                    *o = hit.then_some((0.0, 0));
+                }
+            });
+        }
         if run.stream {
             return run.run_chunks(rays, |rays, out| {
                 let rays: Vec<_> = rays.iter().map(ray).collect();
                 let mut hits = vec![None; rays.len()];
-                self.scene.stream_bare(&rays, any, &mut hits);
+                self.scene.stream_bare(&rays, false, &mut hits);
                 for (o, h) in out.iter_mut().zip(hits) {
-                    *o = h.map(|h| if any { (0.0, 0) } else { (h.t, h.prim) });
+                    *o = h.map(|h| (h.t, h.prim));
                 }
             });
         }
