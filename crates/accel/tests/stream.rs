@@ -2,10 +2,11 @@
 //! [`Scene::any_hit_stream`]) give, ray by ray, what each ray traced alone
 //! gives: the same primitive and the same bits of `t`, `u`, `v` and the
 //! normal; [`Scene::occluded_stream`] gives each ray's
-//! [`Surface::occluded`]. Incoherent rays (random origins and directions, rays from inside
-//! the box, rays at vertices and edges, short and invalid rays) over random
-//! soups, spheres and mixes, real meshes and the hard cases, in streams of
-//! every length around the number of rays in flight.
+//! [`Surface::occluded`]. Incoherent rays (random origins and directions,
+//! rays from inside the box, rays at vertices and edges, short and invalid
+//! rays) over random soups, spheres and mixes, real meshes and the hard
+//! cases, in streams of every length around the number of rays in flight;
+//! runs of coherent rays among them, which streams walk as packets.
 
 use proptest::prelude::*;
 use raymesh_accel::*;
