@@ -950,11 +950,21 @@ impl<P: Primitives> Scene<P> {
             Some(w @ (WideRef::W4(_) | WideRef::W8(_))) if packets => w,
             _ => return self.stream_each(rays, any_hit),
         };
+        // Which runs make packets, found first: a stream where none does
+        // (random or diffuse rays) goes to `stream_each` whole, with no
+        // output or list of the other rays made for nothing.
+        let coherent: Vec<bool> = rays
+            .chunks(LANES)
+            .map(|c| <&[Ray; LANES]>::try_from(c).is_ok_and(Packet8::coherent))
+            .collect();
+        if !coherent.contains(&true) {
+            return self.stream_each(rays, any_hit);
+        }
         let mut out = vec![None; rays.len()];
         let mut rest: Vec<usize> = Vec::new();
-        for (c, chunk) in rays.chunks(LANES).enumerate() {
+        for ((c, chunk), packet) in rays.chunks(LANES).enumerate().zip(coherent) {
             match <&[Ray; LANES]>::try_from(chunk) {
-                Ok(eight) if Packet8::coherent(eight) => {
+                Ok(eight) if packet => {
                     let packet = Packet8::build(eight);
                     let best = if any_hit {
                         self.walk_packet::<true>(wide, &packet)
@@ -967,9 +977,6 @@ impl<P: Primitives> Scene<P> {
                 }
                 _ => rest.extend(c * LANES..c * LANES + chunk.len()),
             }
-        }
-        if rest.len() == rays.len() {
-            return self.stream_each(rays, any_hit);
         }
         if !rest.is_empty() {
             let others: Vec<Ray> = rest.iter().map(|&i| rays[i]).collect();
