@@ -885,7 +885,8 @@ impl<P: Primitives> Scene<P> {
     /// bunny00.off ChineseDragon-10kv.off --stream --size 512`, one thread:
     /// primary rays 8.4 -> 15.5 and 8.1 -> 16.0 Mrays/s, shadow rays 7.0
     /// -> 11.5 and 5.5 -> 10.1; random and diffuse rays, which make no
-    /// packets, 1–1.5% slower for the check). See `raymesh raycast
+    /// packets, level: the runs are checked first, and a stream with no
+    /// packet goes to the interleaved walk whole). See `raymesh raycast
     /// --stream`. Other structures trace one by one.
     pub fn intersect_stream(&self, rays: &[Ray], out: &mut [Option<Hit>]) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
