@@ -57,10 +57,11 @@ pub(crate) trait PacketLeaf {
 /// kernels load whole (32 bytes) lies in one line. Left to the compiler's
 /// layout (alignment 8, two rows straddling lines), occlusion streams
 /// (`Scene::occluded_stream`), whose packets live in a frame of their
-/// own, ran 15–23% slower than with this layout on primary and shadow
-/// rays (`raymesh-peers bunny00.off ChineseDragon-10kv.off --stream
-/// --workloads primary,shadow --size 512 --accel bvh8`, one thread);
-/// the other packet queries are level.
+/// own, ran slower: this layout made them 1.12–1.25 times as fast on
+/// primary and shadow rays (`raymesh-peers bunny00.off
+/// ChineseDragon-10kv.off --stream --workloads primary,shadow --size
+/// 512 --accel bvh8`, one thread, two alternated runs); the other packet
+/// queries are level.
 #[derive(Clone, Debug)]
 #[repr(C, align(64))]
 pub struct Packet8<'a> {
