@@ -321,6 +321,71 @@ unsafe fn slab8_avx(node: *const f32, r: &BoxRay, bound: f32, t: *mut f32) -> u3
     _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(e, x)) as u32
 }
 
+/// [`crate::bvh::group_slab_scalar`] of an 8-wide node in AVX2: the
+/// node's six rows loaded once, each ray's slab test as `slab8_avx`'s
+/// (the same operations in the same order, so the same bits), and each
+/// ray's hits added to the children's ray masks in one vector step.
+/// Panics unless `W == 8`.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) fn group_slab8<const W: usize>(
+    _avx: Avx2,
+    n: &WideNode<W>,
+    g: &crate::bvh::GroupRays,
+    mask: u32,
+) -> [u32; W] {
+    assert!(W == 8);
+    let mut out = [0u32; W];
+    // SAFETY: the node holds W == 8 floats a row (64 in all) and `out` 8
+    // words; the CPU has AVX2 (the `Avx2` proof).
+    unsafe { group_slab8_avx(std::ptr::from_ref(n).cast(), g, mask, out.as_mut_ptr()) };
+    out
+}
+
+/// # Safety
+/// The CPU must have AVX2; `node` must point to a whole 8-wide node (64
+/// floats) and `out` to 8 writable words.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn group_slab8_avx(
+    node: *const f32,
+    g: &crate::bvh::GroupRays,
+    mut mask: u32,
+    out: *mut u32,
+) {
+    use std::arch::x86_64::*;
+    let mut near = [_mm256_setzero_ps(); 3];
+    let mut far = [_mm256_setzero_ps(); 3];
+    for a in 0..3 {
+        near[a] = _mm256_loadu_ps(node.add(g.near[a] & 0x38));
+        far[a] = _mm256_loadu_ps(node.add(g.far[a] & 0x38));
+    }
+    let mut acc = _mm256_setzero_si256();
+    while mask != 0 {
+        let i = mask.trailing_zeros() as usize & (crate::bvh::GROUP - 1);
+        mask &= mask - 1;
+        let mut lo = [_mm256_setzero_ps(); 3];
+        let mut hi = [_mm256_setzero_ps(); 3];
+        for a in 0..3 {
+            let o = _mm256_set1_ps(g.origin[a][i]);
+            lo[a] = _mm256_mul_ps(_mm256_sub_ps(near[a], o), _mm256_set1_ps(g.inv_dir[a][i]));
+            hi[a] = _mm256_mul_ps(_mm256_sub_ps(far[a], o), _mm256_set1_ps(g.inv_exit[a][i]));
+        }
+        let e = _mm256_max_ps(
+            lo[0],
+            _mm256_max_ps(lo[1], _mm256_max_ps(lo[2], _mm256_set1_ps(g.tmin[i]))),
+        );
+        let x = _mm256_min_ps(
+            hi[0],
+            _mm256_min_ps(hi[1], _mm256_min_ps(hi[2], _mm256_set1_ps(g.bound[i]))),
+        );
+        let hit = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LE_OQ>(e, x));
+        acc = _mm256_or_si256(acc, _mm256_and_si256(hit, _mm256_set1_epi32(1 << i)));
+    }
+    _mm256_storeu_si256(out.cast(), acc);
+}
+
 /// [`Bvh::traverse_stream`]'s loop compiled with AVX2 and its pair test
 /// (`pair_slab_avx`) inlined. A closure handed to [`with_avx2`] would do
 /// the same only if the compiler inlined it there, which it declines for
@@ -1368,6 +1433,44 @@ mod tests {
                 with_avx2(|| slab8(n, r, bound, t))
             };
             node_kernel_matches(avx, &corners, used, (o, d, tmin, bound))?;
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(2000))]
+        /// The group kernel gives each ray of the group the children the
+        /// plain loops give it (each ray's one-ray test), on any boxes
+        /// (empty ones too) and rays (invalid ones, infinite and NaN
+        /// bounds too), for any subset of the group.
+        #[test]
+        fn avx_group_slab_matches_fallback(
+            corners in proptest::collection::vec((hard_vec3(), hard_vec3()), 8),
+            used in 0u32..256,
+            octant in hard_vec3(),
+            rays in proptest::collection::vec(
+                (hard_vec3(), hard_vec3(), hard_coord(), hard_coord()), 1..=32),
+            mask in any::<u32>(),
+        ) {
+            prop_assume!(cpu_has_avx2());
+            let mut node = WideNode::<8>::empty();
+            for (i, (a, b)) in corners.iter().enumerate() {
+                if used >> i & 1 != 0 {
+                    node.set_box(i, Aabb::new(a.min(*b), a.max(*b)));
+                }
+            }
+            // Directions in the octant of `octant`, as a group's are.
+            let made: Vec<Ray> = rays
+                .iter()
+                .map(|&(o, d, _, _)| Ray::new(o, d.abs().copysign(octant), 0.0, f32::INFINITY))
+                .collect();
+            let mut g = crate::bvh::GroupRays::new(made.iter());
+            for (i, &(_, _, tmin, bound)) in rays.iter().enumerate() {
+                (g.tmin[i], g.bound[i]) = (tmin, bound);
+            }
+            let mask = mask & (u32::MAX >> (32 - rays.len()));
+            let avx = Avx2::detect().expect("AVX2, checked");
+            let want = crate::bvh::group_slab_scalar(&node, &g, mask);
+            prop_assert_eq!(group_slab8(avx, &node, &g, mask), want);
         }
     }
 

@@ -713,6 +713,180 @@ impl<const W: usize> WideBvh<W> {
     }
 }
 
+/// Rays that walk the tree together in [`WideBvh::occluded_group`]: a
+/// bit each in a `u32` mask. (The group walk runs with the AVX2 node test
+/// only: x86-64.)
+#[cfg(target_arch = "x86_64")]
+pub(crate) const GROUP: usize = 32;
+
+/// What a group's node test needs of its rays (each ray's [`BoxRay`]),
+/// by rows, a lane a ray, for rays of one octant: they share the rows
+/// of a node they meet first and last (`near`, `far`).
+#[derive(Clone, Debug)]
+#[cfg(target_arch = "x86_64")]
+pub(crate) struct GroupRays {
+    pub(crate) origin: [[f32; GROUP]; 3],
+    pub(crate) inv_dir: [[f32; GROUP]; 3],
+    pub(crate) inv_exit: [[f32; GROUP]; 3],
+    pub(crate) tmin: [f32; GROUP],
+    /// Each ray's culling bound (`cull_bound` of its `tmax`).
+    pub(crate) bound: [f32; GROUP],
+    pub(crate) neg: [bool; 3],
+    pub(crate) near: [usize; 3],
+    pub(crate) far: [usize; 3],
+}
+
+#[cfg(target_arch = "x86_64")]
+impl GroupRays {
+    /// The rays `rays` (at most [`GROUP`], all in one octant).
+    pub(crate) fn new<'r>(rays: impl ExactSizeIterator<Item = &'r Ray>) -> Self {
+        assert!(rays.len() <= GROUP);
+        let mut g = Self {
+            origin: [[0.0; GROUP]; 3],
+            inv_dir: [[0.0; GROUP]; 3],
+            inv_exit: [[0.0; GROUP]; 3],
+            tmin: [f32::INFINITY; GROUP],
+            bound: [f32::NEG_INFINITY; GROUP],
+            neg: [false; 3],
+            near: [0, 8, 16],
+            far: [24, 32, 40],
+        };
+        for (i, ray) in rays.enumerate() {
+            let b = BoxRay::new(ray);
+            if i == 0 {
+                (g.neg, g.near, g.far) = (b.neg, b.near, b.far);
+            }
+            assert!(b.neg == g.neg, "a group's rays share their octant");
+            for a in 0..3 {
+                g.origin[a][i] = b.origin[a];
+                g.inv_dir[a][i] = b.inv_dir[a];
+                g.inv_exit[a][i] = b.inv_exit[a];
+            }
+            g.tmin[i] = b.tmin;
+            g.bound[i] = cull_bound(ray.tmax());
+        }
+        g
+    }
+
+    /// Ray `i`'s node-test form.
+    #[cfg(test)]
+    fn ray(&self, i: usize) -> BoxRay {
+        BoxRay {
+            origin: std::array::from_fn(|a| self.origin[a][i]),
+            inv_dir: std::array::from_fn(|a| self.inv_dir[a][i]),
+            inv_exit: std::array::from_fn(|a| self.inv_exit[a][i]),
+            neg: self.neg,
+            tmin: self.tmin[i],
+            near: self.near,
+            far: self.far,
+        }
+    }
+}
+
+/// For each of a node's children, the rays of `mask` (bits of `g`) that
+/// enter its box: each ray by the one-ray node test ([`slab_scalar`]),
+/// so each enters exactly the children it enters alone. What the AVX2
+/// kernel (`simd::group_slab8`) must give, which a test checks.
+#[cfg(all(test, target_arch = "x86_64"))]
+pub(crate) fn group_slab_scalar<const W: usize>(
+    n: &WideNode<W>,
+    g: &GroupRays,
+    mut mask: u32,
+) -> [u32; W] {
+    let mut entered = [0u32; W];
+    let mut t = [0.0f32; W];
+    while mask != 0 {
+        let i = mask.trailing_zeros() as usize;
+        mask &= mask - 1;
+        let mut hits = slab_scalar(n, &g.ray(i), g.bound[i], &mut t);
+        while hits != 0 {
+            let k = hits.trailing_zeros() as usize;
+            hits &= hits - 1;
+            entered[k] |= 1 << i;
+        }
+    }
+    entered
+}
+
+#[cfg(target_arch = "x86_64")]
+impl<const W: usize> WideBvh<W> {
+    /// Which rays of a group (`g`'s first `len`, at most [`GROUP`], in one
+    /// octant) hit anything: a bit each in the returned mask, set when
+    /// `leaf(i, first, count)`, which tests ray `i` against a leaf,
+    /// returned true.
+    ///
+    /// The rays walk the tree as one, each stack item a node or leaf with
+    /// the mask of the rays that entered it: a node's boxes are tested
+    /// against each of its rays (`test(node, g, mask)`: per child, the
+    /// rays that enter it, by each ray's one-ray node test), a leaf
+    /// against each of its rays not yet occluded, and a ray leaves the
+    /// walk at its first hit. Each ray meets every leaf its one-ray
+    /// any-hit walk would until it hits, so whether it hits is the
+    /// one-ray answer. A node that several rays enter is fetched once for
+    /// them all. Embree walks its occlusion streams' rays so, in groups of
+    /// up to 32 of one octant (`bvh_intersector_stream.cpp`).
+    ///
+    /// `stack` is scratch space, cleared first (kept by the caller for the
+    /// next group); `shared` counts on the node visits and the rays they
+    /// took, for the caller's choice of walk.
+    #[inline(always)]
+    pub(crate) fn occluded_group(
+        &self,
+        g: &GroupRays,
+        len: usize,
+        stack: &mut Vec<(u32, u32, u32)>,
+        shared: &mut (u64, u64),
+        leaf: &mut impl FnMut(usize, u32, u32) -> bool,
+        test: impl Fn(&WideNode<W>, &GroupRays, u32) -> [u32; W],
+    ) -> u32 {
+        assert!(len <= GROUP);
+        let nodes: &[WideNode<W>] = &self.nodes;
+        if nodes.is_empty() || len == 0 {
+            return 0;
+        }
+        // Rays still looking for a hit.
+        let start = u32::MAX >> (GROUP - len);
+        let mut alive = start;
+        stack.clear();
+        stack.push((0, 0, alive));
+        while let Some((child, count, mask)) = stack.pop() {
+            let mut m = mask & alive;
+            if m == 0 {
+                continue;
+            }
+            if count > 0 {
+                while m != 0 {
+                    let i = m.trailing_zeros() as usize;
+                    m &= m - 1;
+                    if leaf(i, child, count) {
+                        alive &= !(1 << i);
+                    }
+                }
+                if alive == 0 {
+                    break;
+                }
+                continue;
+            }
+            let n = &nodes[child as usize];
+            shared.0 += 1;
+            shared.1 += u64::from(m.count_ones());
+            let entered = test(n, g, m);
+            let mut any = 0u32;
+            for (k, e) in entered.iter().enumerate() {
+                any |= u32::from(*e != 0) << k;
+            }
+            // The last slot comes off the stack first, as in the one-ray
+            // any-hit walk.
+            while any != 0 {
+                let k = any.trailing_zeros() as usize;
+                any &= any - 1;
+                stack.push((n.child[k], n.count[k], entered[k]));
+            }
+        }
+        start & !alive
+    }
+}
+
 /// A node's entered children (`mask`, entry distances `t`): all but the
 /// nearest pushed onto `stack`, farthest first (in slot order, unless
 /// `ORDERED`), nodes among them prefetched; returns the nearest, or `None`
