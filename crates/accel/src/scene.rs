@@ -896,8 +896,12 @@ impl<P: Primitives> Scene<P> {
         }
     }
 
-    /// [`Self::any_hit`] of many rays, bit for bit, as
-    /// [`Self::intersect_stream`] traces them.
+    /// [`Self::any_hit`] of many rays, bit for bit: interleaved, as
+    /// [`Self::intersect_stream`] traces rays that make no packet, or over
+    /// an 8-wide BVH on a CPU with AVX2 in groups, as
+    /// [`Self::occluded_stream`] walks them (each ray meets the leaves its
+    /// one-ray walk meets, in the same order, so it finds the same hit).
+    /// No packets: a packet's lane may find another hit than its ray alone.
     pub fn any_hit_stream(&self, rays: &[Ray], out: &mut [Option<Hit>]) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
         let found = self.stream(rays, true, false);
@@ -922,8 +926,8 @@ impl<P: Primitives> Scene<P> {
     /// one thread, against interleaving: diffuse rays 1.25–1.54 times as fast, primary
     /// 1.02–1.10, shadow 1.01–1.07, random rays 0.93–0.99 (the probe, and
     /// the sort before it). Where a hit is wanted too,
-    /// [`Self::any_hit_stream`] gives the one-ray hits, without packets or
-    /// groups.
+    /// [`Self::any_hit_stream`] gives the one-ray hits (in groups too, but
+    /// without packets).
     pub fn occluded_stream(&self, rays: &[Ray], out: &mut [bool]) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
         #[cfg(target_arch = "x86_64")]
@@ -963,28 +967,33 @@ impl<P: Primitives> Scene<P> {
                 _ => rest.extend(first..first + chunk.len()),
             }
         }
-        self.occluded_groups(bvh, avx, rays, &rest, out, min_share, probe);
+        self.first_hits_in_groups(bvh, avx, rays, &rest, min_share, probe, &mut |i, _| {
+            out[i] = true;
+        });
     }
 
-    /// Sets `out[i]` for each ray `rays[i]`, `i` in `which`, that hits
-    /// anything: the valid ones sorted by their direction's octant (a
-    /// counting sort), each octant's in groups of [`crate::bvh::GROUP`]
-    /// that walk the tree together ([`Bvh8::occluded_group`]). Once
-    /// `probe` rays have walked so, if their groups' node visits took
-    /// fewer than `min_share` rays each on average, the remaining rays are
-    /// interleaved instead ([`Self::stream_each`]).
+    /// Calls `found(i, (prim, index, hit))` for each ray `rays[i]`, `i` in
+    /// `which`, that hits anything, with its one-ray any hit
+    /// ([`Self::any_hit`]'s: the same leaves in the same order, the first
+    /// hit of the first leaf with one): the valid rays sorted by their
+    /// direction's octant (a counting sort), each octant's in groups of
+    /// [`crate::bvh::GROUP`] that walk the tree together
+    /// ([`Bvh8::occluded_group`]). Once `probe` rays have walked so, if
+    /// their groups' node visits took fewer than `min_share` rays each on
+    /// average, the remaining rays are interleaved instead
+    /// ([`Self::stream_each`]).
     #[cfg(target_arch = "x86_64")]
     #[inline(never)]
     #[allow(clippy::too_many_arguments)]
-    fn occluded_groups(
+    fn first_hits_in_groups(
         &self,
         bvh: &Bvh8,
         avx: Avx2,
         rays: &[Ray],
         which: &[usize],
-        out: &mut [bool],
         min_share: f32,
         probe: usize,
+        found: &mut impl FnMut(usize, (u32, u32, PrimHit)),
     ) {
         use crate::bvh::{GroupRays, GROUP};
         let valid = || which.iter().filter(|&&i| rays[i].is_valid());
@@ -1030,32 +1039,32 @@ impl<P: Primitives> Scene<P> {
                         Default::default()
                     }
                 });
-                let mut hit = bvh.occluded_group(
+                bvh.occluded_group(
                     &g,
                     group.len(),
                     &mut stack,
                     &mut shared,
                     &mut |i, first, count| {
                         let r = ray(i);
-                        self.leaf_any_by(first, count, r.tmax(), |s, n, t| {
+                        let hit = self.leaf_any_by(first, count, r.tmax(), |s, n, t| {
                             self.prims.intersect_block_pre(avx, &pre[i], s, n, r, t)
-                        })
-                        .is_some()
+                        });
+                        if let Some((prim, h)) = hit {
+                            found(group[i], (prim, self.original_index(prim), h));
+                        }
+                        hit.is_some()
                     },
                     |n, g, m| crate::simd::group_slab8(avx, n, g, m),
                 );
-                while hit != 0 {
-                    let i = hit.trailing_zeros() as usize;
-                    hit &= hit - 1;
-                    out[group[i]] = true;
-                }
             }
             None
         });
         if let Some(done) = handed {
             let others: Vec<Ray> = order[done..].iter().map(|&i| rays[i]).collect();
             for (&i, f) in order[done..].iter().zip(self.stream_each(&others, true)) {
-                out[i] = f.is_some();
+                if let Some(f) = f {
+                    found(i, f);
+                }
             }
         }
     }
@@ -1086,6 +1095,20 @@ impl<P: Primitives> Scene<P> {
         any_hit: bool,
         packets: bool,
     ) -> Vec<Option<(u32, u32, PrimHit)>> {
+        // One-ray any hits (no packets, whose lanes may find others) in
+        // groups where the groups pay, as occlusion streams walk.
+        #[cfg(target_arch = "x86_64")]
+        if any_hit && !packets {
+            if let (Some(WideRef::W8(bvh)), Some(avx)) = (self.wide_blocks(), Avx2::detect()) {
+                let mut out = vec![None; rays.len()];
+                let all: Vec<usize> = (0..rays.len()).collect();
+                let (share, probe) = (GROUP_MIN_SHARE, GROUP_PROBE);
+                self.first_hits_in_groups(bvh, avx, rays, &all, share, probe, &mut |i, f| {
+                    out[i] = Some(f);
+                });
+                return out;
+            }
+        }
         let wide = match self.wide_blocks() {
             Some(w @ (WideRef::W4(_) | WideRef::W8(_))) if packets => w,
             _ => return self.stream_each(rays, any_hit),
@@ -1483,6 +1506,29 @@ mod tests {
                         got[i], want[i],
                         "ray {i} of {n}, min_share {min_share}, probe {probe}: {:?}",
                         rays[i]
+                    );
+                }
+                // And the hits: each ray's one-ray any hit, bit for bit.
+                let mut hits = vec![None; n];
+                let all: Vec<usize> = (0..n).collect();
+                s.first_hits_in_groups(
+                    bvh,
+                    avx,
+                    &rays[..n],
+                    &all,
+                    min_share,
+                    probe,
+                    &mut |i, f| {
+                        hits[i] = Some(f);
+                    },
+                );
+                for i in 0..n {
+                    let bits = |t: f32, u: f32, v: f32| [t.to_bits(), u.to_bits(), v.to_bits()];
+                    let got = hits[i].map(|(_, index, h)| (index, bits(h.t, h.u, h.v)));
+                    let one = s.any_hit(&rays[i]).map(|h| (h.prim, bits(h.t, h.u, h.v)));
+                    assert_eq!(
+                        got, one,
+                        "any hit, ray {i} of {n}, policy {min_share} {probe}"
                     );
                 }
             }
