@@ -975,7 +975,7 @@ impl<P: Primitives> Scene<P> {
     /// Calls `found(i, (prim, index, hit))` for each ray `rays[i]`, `i` in
     /// `which`, that hits anything, with its one-ray any hit
     /// ([`Self::any_hit`]'s: the same leaves in the same order, the first
-    /// hit of the first leaf with one): the valid rays sorted by their
+    /// hit of the first leaf with one): the rays sorted by their
     /// direction's octant (a counting sort), each octant's in groups of
     /// [`crate::bvh::GROUP`] that walk the tree together
     /// ([`Bvh8::occluded_group`]). Once `probe` rays have walked so, if
@@ -996,20 +996,23 @@ impl<P: Primitives> Scene<P> {
         found: &mut impl FnMut(usize, (u32, u32, PrimHit)),
     ) {
         use crate::bvh::{GroupRays, GROUP};
-        let valid = || which.iter().filter(|&&i| rays[i].is_valid());
+        // A counting sort by octant, reading each ray once (its first touch
+        // of the stream: the reads were a good part of this function's
+        // time). Invalid rays go in too: with `tmin` infinite and the bound
+        // `-inf` (or NaN) they enter no box, as alone.
+        let octant: Vec<u8> = which.iter().map(|&i| rays[i].octant() as u8).collect();
         let mut starts = [0usize; 9];
-        for &i in valid() {
-            starts[rays[i].octant() + 1] += 1;
+        for &o in &octant {
+            starts[usize::from(o) + 1] += 1;
         }
         for o in 0..8 {
             starts[o + 1] += starts[o];
         }
         let mut at = starts;
-        let mut order = vec![0usize; starts[8]];
-        for &i in valid() {
-            let o = rays[i].octant();
-            order[at[o]] = i;
-            at[o] += 1;
+        let mut order = vec![0usize; which.len()];
+        for (&i, &o) in which.iter().zip(&octant) {
+            order[at[usize::from(o)]] = i;
+            at[usize::from(o)] += 1;
         }
         // The groups, as ranges of `order`: each octant's rays in runs of
         // at most GROUP, one octant after another.
