@@ -921,10 +921,10 @@ impl<P: Primitives> Scene<P> {
     /// occlusion streams), unless the first groups share too few nodes
     /// (random rays), which leaves the rest interleaved; elsewhere they
     /// are interleaved. `raymesh-peers bunny00.off ChineseDragon-10kv.off
-    /// pig.stl polygon_mesh.off sphere.ply --stream --size 512 --accel
-    /// bvh8` (the last from `raymesh generate sphere --triangles 600000`),
-    /// one thread, against interleaving: diffuse rays 1.25–1.54 times as fast, primary
-    /// 1.02–1.10, shadow 1.01–1.07, random rays 0.93–0.99 (the probe, and
+    /// pig.stl sphere.ply --workloads random,diffuse --stream --size 512
+    /// --accel bvh8` (the last from `raymesh generate sphere --triangles
+    /// 600000`), one thread, against interleaving (81aa57f): diffuse rays
+    /// 1.28–1.60 times as fast, random rays 0.90–0.99 (the probe, and
     /// the sort before it). Where a hit is wanted too,
     /// [`Self::any_hit_stream`] gives the one-ray hits (in groups too, but
     /// without packets).
@@ -942,7 +942,7 @@ impl<P: Primitives> Scene<P> {
 
     /// [`Self::occluded_stream`] over an 8-wide BVH on a CPU with AVX2:
     /// each run of eight rays that makes a packet as a packet, the others
-    /// by [`Self::occluded_groups`] with `min_share` and `probe`.
+    /// by [`Self::first_hits_in_groups`] with `min_share` and `probe`.
     #[cfg(target_arch = "x86_64")]
     fn occluded_packets_groups(
         &self,

@@ -321,10 +321,11 @@ unsafe fn slab8_avx(node: *const f32, r: &BoxRay, bound: f32, t: *mut f32) -> u3
     _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(e, x)) as u32
 }
 
-/// [`crate::bvh::group_slab_scalar`] of an 8-wide node in AVX2: the
-/// node's six rows loaded once, each ray's slab test as `slab8_avx`'s
-/// (the same operations in the same order, so the same bits), and each
-/// ray's hits added to the children's ray masks in one vector step.
+/// `bvh::group_slab_scalar` (the test-only fallback) of an 8-wide node
+/// in AVX2: the node's six rows loaded once, each ray's slab test as
+/// `slab8_avx`'s (the same operations in the same order, so the same
+/// bits), and each ray's hits added to the children's ray masks in one
+/// vector step.
 /// Panics unless `W == 8`.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
