@@ -1,6 +1,10 @@
 //! Primitives plus a structure: the lecture's Surface interface.
 
+#[cfg(target_arch = "x86_64")]
+use crate::bvh::GroupLeaf;
 use crate::simd::avx_run;
+#[cfg(target_arch = "x86_64")]
+use crate::simd::BlockRay;
 use crate::{
     packet::{Packet8, PacketLeaf, LANES},
     prims::BLOCK,
@@ -886,8 +890,16 @@ impl<P: Primitives> Scene<P> {
     /// primary rays 8.4 -> 15.5 and 8.1 -> 16.0 Mrays/s, shadow rays 7.0
     /// -> 11.5 and 5.5 -> 10.1; random and diffuse rays, which make no
     /// packets, level: the runs are checked first, and a stream with no
-    /// packet goes to the interleaved walk whole). See `raymesh raycast
-    /// --stream`. Other structures trace one by one.
+    /// packet goes to the interleaved walk whole). Over an 8-wide BVH on
+    /// a CPU with AVX2, a stream with no packet walks in groups of up to
+    /// 32 rays of one octant instead (`Bvh8::intersect_group`), each
+    /// node fetched and tested once for all the group's rays that enter
+    /// it, unless its rays start scattered (random rays) or its first
+    /// groups share too few nodes, which leave it interleaved: diffuse
+    /// rays 1.12–1.26 times as fast as interleaved on bunny00, the dragon
+    /// and the pig, level on a 600K-triangle sphere (`raymesh-peers
+    /// --stream --workloads diffuse --size 512 --accel bvh8`, one thread).
+    /// See `raymesh raycast --stream`. Other structures trace one by one.
     pub fn intersect_stream(&self, rays: &[Ray], out: &mut [Option<Hit>]) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
         let best = self.stream(rays, false, true);
@@ -918,21 +930,23 @@ impl<P: Primitives> Scene<P> {
     /// hits. Over an 8-wide BVH on a CPU with AVX2 the other rays walk it
     /// in groups of up to 32 of one octant, each node fetched and tested
     /// once for all the group's rays that enter it (as Embree walks its
-    /// occlusion streams), unless the first groups share too few nodes
-    /// (random rays), which leaves the rest interleaved; elsewhere they
-    /// are interleaved. `raymesh-peers bunny00.off ChineseDragon-10kv.off
+    /// occlusion streams), unless they start scattered (random rays),
+    /// which leaves them interleaved, or the first groups share too few
+    /// nodes, which leaves the rest interleaved; elsewhere they are
+    /// interleaved. `raymesh-peers bunny00.off ChineseDragon-10kv.off
     /// pig.stl sphere.ply --workloads random,diffuse --stream --size 512
     /// --accel bvh8` (the last from `raymesh generate sphere --triangles
     /// 600000`), one thread, against interleaving (81aa57f): diffuse rays
-    /// 1.28–1.60 times as fast, random rays 0.90–0.99 (the probe, and
-    /// the sort before it). Where a hit is wanted too,
+    /// 1.28–1.60 times as fast, random rays 0.90–0.99 when they were
+    /// probed and sorted too; left interleaved at once, random rays run
+    /// 1.00–1.03 times as fast as so. Where a hit is wanted too,
     /// [`Self::any_hit_stream`] gives the one-ray hits (in groups too, but
     /// without packets).
     pub fn occluded_stream(&self, rays: &[Ray], out: &mut [bool]) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
         #[cfg(target_arch = "x86_64")]
         if let (Some(WideRef::W8(bvh)), Some(avx)) = (self.wide_blocks(), Avx2::detect()) {
-            self.occluded_packets_groups(bvh, avx, rays, out, GROUP_MIN_SHARE, GROUP_PROBE);
+            self.occluded_packets_groups(bvh, avx, rays, out, GroupPolicy::ANY_HIT);
             return;
         }
         for (o, f) in out.iter_mut().zip(self.stream(rays, true, true)) {
@@ -942,7 +956,7 @@ impl<P: Primitives> Scene<P> {
 
     /// [`Self::occluded_stream`] over an 8-wide BVH on a CPU with AVX2:
     /// each run of eight rays that makes a packet as a packet, the others
-    /// by [`Self::first_hits_in_groups`] with `min_share` and `probe`.
+    /// by [`Self::first_hits_in_groups`] with `policy`.
     #[cfg(target_arch = "x86_64")]
     fn occluded_packets_groups(
         &self,
@@ -950,8 +964,7 @@ impl<P: Primitives> Scene<P> {
         avx: Avx2,
         rays: &[Ray],
         out: &mut [bool],
-        min_share: f32,
-        probe: usize,
+        policy: GroupPolicy,
     ) {
         out.fill(false);
         let mut rest: Vec<usize> = Vec::with_capacity(rays.len());
@@ -967,21 +980,24 @@ impl<P: Primitives> Scene<P> {
                 _ => rest.extend(first..first + chunk.len()),
             }
         }
-        self.first_hits_in_groups(bvh, avx, rays, &rest, min_share, probe, &mut |i, _| {
+        self.first_hits_in_groups(bvh, avx, rays, &rest, true, policy, &mut |i, _| {
             out[i] = true;
         });
     }
 
     /// Calls `found(i, (prim, index, hit))` for each ray `rays[i]`, `i` in
-    /// `which`, that hits anything, with its one-ray any hit
-    /// ([`Self::any_hit`]'s: the same leaves in the same order, the first
-    /// hit of the first leaf with one): the rays sorted by their
-    /// direction's octant (a counting sort), each octant's in groups of
-    /// [`crate::bvh::GROUP`] that walk the tree together
-    /// ([`Bvh8::occluded_group`]). Once `probe` rays have walked so, if
-    /// their groups' node visits took fewer than `min_share` rays each on
-    /// average, the remaining rays are interleaved instead
-    /// ([`Self::stream_each`]).
+    /// `which`, that hits anything, with its one-ray hit: with `any_hit`,
+    /// [`Self::any_hit`]'s (the same leaves in the same order, the first
+    /// hit of the first leaf with one), else [`Self::intersect`]'s closest
+    /// (least `t`, ties to the least index, whatever the order). The rays
+    /// are sorted by their direction's octant (a counting sort), each
+    /// octant's in groups of [`crate::bvh::GROUP`] that walk the tree
+    /// together ([`Bvh8::occluded_group`], [`Bvh8::intersect_group`]).
+    /// Once `policy.probe` rays have walked so, if their groups' node
+    /// visits took fewer than `policy.min_share` rays each on average, the
+    /// remaining rays are interleaved instead ([`Self::stream_each`]); so
+    /// are all of them, without a group, where they start scattered
+    /// ([`Self::scattered`] with `policy.scatter`).
     #[cfg(target_arch = "x86_64")]
     #[inline(never)]
     #[allow(clippy::too_many_arguments)]
@@ -991,11 +1007,14 @@ impl<P: Primitives> Scene<P> {
         avx: Avx2,
         rays: &[Ray],
         which: &[usize],
-        min_share: f32,
-        probe: usize,
+        any_hit: bool,
+        policy: GroupPolicy,
         found: &mut impl FnMut(usize, (u32, u32, PrimHit)),
     ) {
         use crate::bvh::{GroupRays, GROUP};
+        if self.scattered(which.iter().map(|&i| rays[i].origin()), policy.scatter) {
+            return self.interleave(rays, which, any_hit, found);
+        }
         // A counting sort by octant, reading each ray once (its first touch
         // of the stream: the reads were a good part of this function's
         // time). Invalid rays go in too: with `tmin` infinite and the bound
@@ -1024,25 +1043,29 @@ impl<P: Primitives> Scene<P> {
             })
             .collect();
         let mut stack = Vec::with_capacity(256);
+        let mut entries = Vec::with_capacity(256);
         // Node visits and the rays they took, over the groups so far.
         let mut shared = (0u64, 0u64);
-        let handed = avx_run!(avx, || {
-            for &(a, b) in &groups {
-                if a >= probe && (shared.1 as f64) < f64::from(min_share) * shared.0 as f64 {
-                    return Some(a);
+        let mut handed = None;
+        for &(a, b) in &groups {
+            let few = (shared.1 as f64) < f64::from(policy.min_share) * shared.0 as f64;
+            if a >= policy.probe && few {
+                handed = Some(a);
+                break;
+            }
+            let group = &order[a..b];
+            let ray = |i: usize| &rays[group[i]];
+            let mut g = GroupRays::new(group.iter().map(|&i| &rays[i]));
+            // Each ray's leaf-test constants, made once for the walk.
+            let pre: [_; GROUP] = std::array::from_fn(|i| {
+                if i < group.len() {
+                    self.prims.block_ray(ray(i))
+                } else {
+                    Default::default()
                 }
-                let group = &order[a..b];
-                let ray = |i: usize| &rays[group[i]];
-                let g = GroupRays::new(group.iter().map(|&i| &rays[i]));
-                // Each ray's leaf-test constants, made once for the walk.
-                let pre: [_; GROUP] = std::array::from_fn(|i| {
-                    if i < group.len() {
-                        self.prims.block_ray(ray(i))
-                    } else {
-                        Default::default()
-                    }
-                });
-                bvh.occluded_group(
+            });
+            if any_hit {
+                avx_run!(avx, || bvh.occluded_group(
                     &g,
                     group.len(),
                     &mut stack,
@@ -1058,18 +1081,81 @@ impl<P: Primitives> Scene<P> {
                         hit.is_some()
                     },
                     |n, g, m| crate::simd::group_slab8(avx, n, g, m),
-                );
+                ));
+                continue;
             }
-            None
-        });
-        if let Some(done) = handed {
-            let others: Vec<Ray> = order[done..].iter().map(|&i| rays[i]).collect();
-            for (&i, f) in order[done..].iter().zip(self.stream_each(&others, true)) {
-                if let Some(f) = f {
-                    found(i, f);
+            let mut leaf = ClosestInGroup {
+                scene: self,
+                avx,
+                rays,
+                group,
+                pre: &pre,
+                tmax: std::array::from_fn(|i| if i < group.len() { ray(i).tmax() } else { 0.0 }),
+                best: [None; GROUP],
+            };
+            let len = group.len();
+            let e = &mut entries;
+            crate::simd::intersect_group_avx2(avx, bvh, &mut g, len, e, &mut shared, &mut leaf);
+            for (&i, b) in group.iter().zip(leaf.best) {
+                if let Some((prim, h)) = b {
+                    found(i, (prim, self.original_index(prim), h));
                 }
             }
         }
+        if let Some(done) = handed {
+            self.interleave(rays, &order[done..], any_hit, found);
+        }
+    }
+
+    /// Calls `found(i, hit)` for each ray `rays[i]`, `i` in `which`, that
+    /// hits anything, with its one-ray hit (closest, or with `any_hit` the
+    /// one-ray any hit), the rays interleaved ([`Self::stream_each`]): in
+    /// place where `which` holds every ray, in order (as the callers make
+    /// it), else a copy of them in `which`'s order.
+    #[cfg(target_arch = "x86_64")]
+    fn interleave(
+        &self,
+        rays: &[Ray],
+        which: &[usize],
+        any_hit: bool,
+        found: &mut impl FnMut(usize, (u32, u32, PrimHit)),
+    ) {
+        let each = if which.len() == rays.len() {
+            self.stream_each(rays, any_hit)
+        } else {
+            let others: Vec<Ray> = which.iter().map(|&i| rays[i]).collect();
+            self.stream_each(&others, any_hit)
+        };
+        for (i, f) in which.iter().zip(each) {
+            if let Some(f) = f {
+                found(*i, f);
+            }
+        }
+    }
+
+    /// Whether a stream's rays, whose origins are `origins` in the stream's
+    /// order, start far from their neighbours: the first [`SCATTER_PROBE`],
+    /// on average more than `fraction` of the scene box's diagonal from
+    /// the one before (non-finite distances left out).
+    /// Groups gather rays near each other in the stream, and rays that
+    /// start so far apart share few nodes (random rays, whose origins lie
+    /// anywhere on a sphere around the scene): such streams are
+    /// interleaved without walking any group to find out.
+    #[cfg(target_arch = "x86_64")]
+    fn scattered(&self, mut origins: impl Iterator<Item = Vec3>, fraction: f32) -> bool {
+        let diagonal = self.bounds.diagonal();
+        let Some(mut last) = origins.next() else {
+            return false;
+        };
+        let (mut apart, mut n) = (0.0f32, 0usize);
+        for o in origins.take(SCATTER_PROBE - 1) {
+            let d = o.distance(last);
+            if d.is_finite() {
+                apart += d;
+            }
+            (last, n) = (o, n + 1);
+        }
+        n > 0 && diagonal.is_finite() && apart > fraction * diagonal * n as f32
     }
 
     /// [`Self::intersect_stream`] (or, with `any_hit`,
@@ -1103,27 +1189,29 @@ impl<P: Primitives> Scene<P> {
         #[cfg(target_arch = "x86_64")]
         if any_hit && !packets {
             if let (Some(WideRef::W8(bvh)), Some(avx)) = (self.wide_blocks(), Avx2::detect()) {
-                let mut out = vec![None; rays.len()];
-                let all: Vec<usize> = (0..rays.len()).collect();
-                let (share, probe) = (GROUP_MIN_SHARE, GROUP_PROBE);
-                self.first_hits_in_groups(bvh, avx, rays, &all, share, probe, &mut |i, f| {
-                    out[i] = Some(f);
-                });
-                return out;
+                return self.stream_in_groups(bvh, avx, rays, true);
             }
         }
         let wide = match self.wide_blocks() {
             Some(w @ (WideRef::W4(_) | WideRef::W8(_))) if packets => w,
             _ => return self.stream_each(rays, any_hit),
         };
-        // Which runs make packets, found first: a stream where none does
-        // (random or diffuse rays) goes to `stream_each` whole, with no
-        // output or list of the other rays made for nothing.
+        // Which runs make packets, found first.
         let coherent: Vec<bool> = rays
             .chunks(LANES)
             .map(|c| <&[Ray; LANES]>::try_from(c).is_ok_and(Packet8::coherent))
             .collect();
         if !coherent.contains(&true) {
+            // Closest hits of a stream with no packet (diffuse rays) over
+            // an 8-wide BVH on a CPU with AVX2 walk in groups where the
+            // groups pay. (The few other rays of a stream with packets,
+            // where neighbouring rays' octants differ, stay interleaved: in
+            // groups, a camera's rays ran 2.5-5% slower.)
+            #[cfg(target_arch = "x86_64")]
+            if let (WideRef::W8(bvh), Some(avx), false) = (wide, Avx2::detect(), any_hit) {
+                return self.stream_in_groups(bvh, avx, rays, false);
+            }
+            // No output or list of the other rays made for nothing.
             return self.stream_each(rays, any_hit);
         }
         let mut out = vec![None; rays.len()];
@@ -1150,6 +1238,37 @@ impl<P: Primitives> Scene<P> {
                 out[i] = found;
             }
         }
+        out
+    }
+
+    /// [`Self::stream`] of rays that make no packets, over an 8-wide BVH
+    /// on a CPU with AVX2, with `any_hit` (the one-ray any hits) or
+    /// without: [`Self::first_hits_in_groups`] with the policy for the
+    /// query, or where the rays start scattered, [`Self::stream_each`]
+    /// (checked here too: handed over by `first_hits_in_groups`, through
+    /// a list and a copy of the hits, random rays' closest hits ran 3-4%
+    /// slower).
+    #[cfg(target_arch = "x86_64")]
+    fn stream_in_groups(
+        &self,
+        bvh: &Bvh8,
+        avx: Avx2,
+        rays: &[Ray],
+        any_hit: bool,
+    ) -> Vec<Option<(u32, u32, PrimHit)>> {
+        if self.scattered(rays.iter().map(Ray::origin), SCATTER_FRACTION) {
+            return self.stream_each(rays, any_hit);
+        }
+        let policy = if any_hit {
+            GroupPolicy::ANY_HIT
+        } else {
+            GroupPolicy::CLOSEST
+        };
+        let mut out = vec![None; rays.len()];
+        let all: Vec<usize> = (0..rays.len()).collect();
+        self.first_hits_in_groups(bvh, avx, rays, &all, any_hit, policy, &mut |i, f| {
+            out[i] = Some(f);
+        });
         out
     }
 
@@ -1216,6 +1335,39 @@ impl<P: Primitives> Scene<P> {
     }
 }
 
+/// The leaves of a group's closest-hit walk
+/// ([`crate::bvh::WideBvh::intersect_group`]): ray `i` of the group is
+/// `rays[group[i]]`, with its leaf-test constants `pre[i]`, its closest
+/// hit so far `best[i]` and its `tmax[i]`.
+#[cfg(target_arch = "x86_64")]
+struct ClosestInGroup<'a, P: Primitives> {
+    scene: &'a Scene<P>,
+    avx: Avx2,
+    rays: &'a [Ray],
+    group: &'a [usize],
+    pre: &'a [BlockRay; crate::bvh::GROUP],
+    tmax: [f32; crate::bvh::GROUP],
+    best: [Option<(u32, PrimHit)>; crate::bvh::GROUP],
+}
+
+#[cfg(target_arch = "x86_64")]
+impl<P: Primitives> GroupLeaf for ClosestInGroup<'_, P> {
+    #[inline(always)]
+    fn visit(&mut self, i: usize, first: u32, count: u32) -> Option<f32> {
+        let (scene, avx, pre) = (self.scene, self.avx, &self.pre[i]);
+        let r = &self.rays[self.group[i]];
+        let before = self.tmax[i];
+        scene.leaf_closest_by(
+            first,
+            count,
+            &mut self.tmax[i],
+            &mut self.best[i],
+            |s, n, t| scene.prims.intersect_block_pre(avx, pre, s, n, r, t),
+        );
+        (self.tmax[i] != before).then_some(self.tmax[i])
+    }
+}
+
 /// The [`BareHit`] of hit `h` of the primitive given index `index`.
 fn bare_at(index: u32, h: PrimHit) -> BareHit {
     BareHit {
@@ -1261,10 +1413,57 @@ const KD_GATHER_BLOCK: usize = 2;
 #[cfg(target_arch = "x86_64")]
 const GROUP_MIN_SHARE: f32 = 2.5;
 
-/// Rays of an occlusion stream that walk in groups before
-/// [`GROUP_MIN_SHARE`] decides for the others: two groups.
+/// [`GROUP_MIN_SHARE`] for closest hits ([`Scene::intersect_stream`]),
+/// which need more sharing for a gain: rays a node visit took in groups,
+/// diffuse rays at 256² (bunny00, the dragon, the pig, polygon_mesh, a
+/// 600K-triangle sphere), 4.4, 5.9, 7.1, 4.4 and 3.5, where groups ran
+/// 1.12, 1.26, 1.13, 1.08 and 0.98 times as fast as interleaving (at
+/// 512²); random rays 1.7–2.4, where groups ran 0.5–0.8 times as fast.
+#[cfg(target_arch = "x86_64")]
+const CLOSEST_MIN_SHARE: f32 = 3.0;
+
+/// Rays of a stream that walk in groups before [`GROUP_MIN_SHARE`] (or
+/// [`CLOSEST_MIN_SHARE`]) decides for the others: two groups.
 #[cfg(target_arch = "x86_64")]
 const GROUP_PROBE: usize = 64;
+
+/// Rays whose origins [`Scene::scattered`] compares.
+#[cfg(target_arch = "x86_64")]
+const SCATTER_PROBE: usize = 64;
+
+/// How far apart, as a fraction of the scene box's diagonal, neighbouring
+/// rays of a stream start on average for [`Scene::scattered`] to leave
+/// the stream interleaved. BENCH.md's random rays start about a diagonal
+/// apart; a camera's diffuse bounces from neighbouring pixels, a few
+/// thousandths except across silhouettes.
+#[cfg(target_arch = "x86_64")]
+const SCATTER_FRACTION: f32 = 0.0625;
+
+/// When [`Scene::first_hits_in_groups`] walks rays in groups and when it
+/// interleaves them: see there.
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy, Debug)]
+struct GroupPolicy {
+    min_share: f32,
+    probe: usize,
+    scatter: f32,
+}
+
+#[cfg(target_arch = "x86_64")]
+impl GroupPolicy {
+    /// Any hits and occlusion.
+    const ANY_HIT: Self = Self {
+        min_share: GROUP_MIN_SHARE,
+        probe: GROUP_PROBE,
+        scatter: SCATTER_FRACTION,
+    };
+    /// Closest hits.
+    const CLOSEST: Self = Self {
+        min_share: CLOSEST_MIN_SHARE,
+        probe: GROUP_PROBE,
+        scatter: SCATTER_FRACTION,
+    };
+}
 
 impl Scene<Triangles> {
     /// The fastest scene over an indexed mesh: its triangles as
@@ -1481,12 +1680,13 @@ mod tests {
         (TriangleMesh::new(positions, triangles), rays)
     }
 
-    /// Occlusion streams give each ray's one-ray answer whichever way
-    /// their rays go: all in groups, all interleaved after a probe of
-    /// none, the switch after the usual probe, and the default policy,
-    /// over streams of several lengths.
+    /// Occlusion streams, and streams in groups for any and closest hits,
+    /// give each ray's one-ray answer whichever way their rays go: all in
+    /// groups, all interleaved after a probe of none, the switch after the
+    /// usual probe, all interleaved as scattered, and the default
+    /// policies, over streams of several lengths.
     #[test]
-    fn occlusion_groups_give_the_one_ray_answers() {
+    fn stream_groups_give_the_one_ray_answers() {
         let Some(avx) = Avx2::detect() else { return };
         let (m, rays) = cloud_and_rays();
         let s = Scene::from_mesh(&m, AccelKind::Bvh8);
@@ -1495,44 +1695,53 @@ mod tests {
         };
         let want: Vec<bool> = rays.iter().map(|r| s.occluded(r)).collect();
         assert!(want.iter().any(|&w| w) && want.iter().any(|&w| !w));
-        for (min_share, probe) in [
-            (0.0, 0),
-            (f32::INFINITY, 0),
-            (f32::INFINITY, GROUP_PROBE),
-            (GROUP_MIN_SHARE, GROUP_PROBE),
+        let policy = |min_share, probe, scatter| GroupPolicy {
+            min_share,
+            probe,
+            scatter,
+        };
+        let never = f32::INFINITY;
+        for policy in [
+            policy(0.0, 0, never),
+            policy(never, 0, never),
+            policy(never, GROUP_PROBE, never),
+            policy(0.0, 0, 0.0),
+            GroupPolicy::ANY_HIT,
+            GroupPolicy::CLOSEST,
         ] {
             for n in [rays.len(), 1000, 97, 33, 8, 1, 0] {
                 let mut got = vec![true; n];
-                s.occluded_packets_groups(bvh, avx, &rays[..n], &mut got, min_share, probe);
+                s.occluded_packets_groups(bvh, avx, &rays[..n], &mut got, policy);
                 for i in 0..n {
-                    assert_eq!(
-                        got[i], want[i],
-                        "ray {i} of {n}, min_share {min_share}, probe {probe}: {:?}",
-                        rays[i]
-                    );
+                    assert_eq!(got[i], want[i], "ray {i} of {n}, {policy:?}: {:?}", rays[i]);
                 }
-                // And the hits: each ray's one-ray any hit, bit for bit.
-                let mut hits = vec![None; n];
+                // And the hits: each ray's one-ray any hit and closest hit,
+                // bit for bit.
                 let all: Vec<usize> = (0..n).collect();
-                s.first_hits_in_groups(
-                    bvh,
-                    avx,
-                    &rays[..n],
-                    &all,
-                    min_share,
-                    probe,
-                    &mut |i, f| {
-                        hits[i] = Some(f);
-                    },
-                );
-                for i in 0..n {
-                    let bits = |t: f32, u: f32, v: f32| [t.to_bits(), u.to_bits(), v.to_bits()];
-                    let got = hits[i].map(|(_, index, h)| (index, bits(h.t, h.u, h.v)));
-                    let one = s.any_hit(&rays[i]).map(|h| (h.prim, bits(h.t, h.u, h.v)));
-                    assert_eq!(
-                        got, one,
-                        "any hit, ray {i} of {n}, policy {min_share} {probe}"
+                for any_hit in [true, false] {
+                    let mut hits = vec![None; n];
+                    s.first_hits_in_groups(
+                        bvh,
+                        avx,
+                        &rays[..n],
+                        &all,
+                        any_hit,
+                        policy,
+                        &mut |i, f| {
+                            hits[i] = Some(f);
+                        },
                     );
+                    for i in 0..n {
+                        let bits = |t: f32, u: f32, v: f32| [t.to_bits(), u.to_bits(), v.to_bits()];
+                        let got = hits[i].map(|(_, index, h)| (index, bits(h.t, h.u, h.v)));
+                        let one = if any_hit {
+                            s.any_hit(&rays[i])
+                        } else {
+                            s.intersect(&rays[i])
+                        };
+                        let one = one.map(|h| (h.prim, bits(h.t, h.u, h.v)));
+                        assert_eq!(got, one, "any hit {any_hit}, ray {i} of {n}, {policy:?}");
+                    }
                 }
             }
         }

@@ -337,10 +337,38 @@ pub(crate) fn group_slab8<const W: usize>(
 ) -> [u32; W] {
     assert!(W == 8);
     let mut out = [0u32; W];
-    // SAFETY: the node holds W == 8 floats a row (64 in all) and `out` 8
-    // words; the CPU has AVX2 (the `Avx2` proof).
-    unsafe { group_slab8_avx(std::ptr::from_ref(n).cast(), g, mask, out.as_mut_ptr()) };
+    let mut entry = [0.0f32; W];
+    // SAFETY: the node holds W == 8 floats a row (64 in all), `out` 8
+    // words and `entry` 8 floats; the CPU has AVX2 (the `Avx2` proof).
+    unsafe {
+        let node = std::ptr::from_ref(n).cast();
+        group_slab8_avx::<false>(node, g, mask, out.as_mut_ptr(), entry.as_mut_ptr());
+    }
     out
+}
+
+/// [`group_slab8`] that also gives, for each child, the least entry
+/// distance among the rays that enter it (infinity where none does), as
+/// `bvh::group_slab_entry_scalar` (the test-only fallback) does: what a
+/// group's closest-hit walk orders children by and drops rays by.
+/// Panics unless `W == 8`.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) fn group_slab8_entry<const W: usize>(
+    _avx: Avx2,
+    n: &WideNode<W>,
+    g: &crate::bvh::GroupRays,
+    mask: u32,
+) -> ([u32; W], [f32; W]) {
+    assert!(W == 8);
+    let mut out = [0u32; W];
+    let mut entry = [0.0f32; W];
+    // SAFETY: as in `group_slab8`.
+    unsafe {
+        let node = std::ptr::from_ref(n).cast();
+        group_slab8_avx::<true>(node, g, mask, out.as_mut_ptr(), entry.as_mut_ptr());
+    }
+    (out, entry)
 }
 
 /// # Safety
@@ -349,11 +377,12 @@ pub(crate) fn group_slab8<const W: usize>(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
-unsafe fn group_slab8_avx(
+unsafe fn group_slab8_avx<const ENTRY: bool>(
     node: *const f32,
     g: &crate::bvh::GroupRays,
     mut mask: u32,
     out: *mut u32,
+    entry: *mut f32,
 ) {
     use std::arch::x86_64::*;
     let mut near = [_mm256_setzero_ps(); 3];
@@ -363,6 +392,8 @@ unsafe fn group_slab8_avx(
         far[a] = _mm256_loadu_ps(node.add(g.far[a] & 0x38));
     }
     let mut acc = _mm256_setzero_si256();
+    let inf = _mm256_set1_ps(f32::INFINITY);
+    let mut least = inf;
     while mask != 0 {
         let i = mask.trailing_zeros() as usize & (crate::bvh::GROUP - 1);
         mask &= mask - 1;
@@ -381,10 +412,19 @@ unsafe fn group_slab8_avx(
             hi[0],
             _mm256_min_ps(hi[1], _mm256_min_ps(hi[2], _mm256_set1_ps(g.bound[i]))),
         );
-        let hit = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LE_OQ>(e, x));
+        let hit = _mm256_cmp_ps::<_CMP_LE_OQ>(e, x);
+        if ENTRY {
+            // `e` where the ray enters (never NaN there: `e <= x` held),
+            // infinity elsewhere; `min_ps` of two numbers is exact.
+            least = _mm256_min_ps(least, _mm256_blendv_ps(inf, e, hit));
+        }
+        let hit = _mm256_castps_si256(hit);
         acc = _mm256_or_si256(acc, _mm256_and_si256(hit, _mm256_set1_epi32(1 << i)));
     }
     _mm256_storeu_si256(out.cast(), acc);
+    if ENTRY {
+        _mm256_storeu_ps(entry, least);
+    }
 }
 
 /// [`Bvh::traverse_stream`]'s loop compiled with AVX2 and its pair test
@@ -436,6 +476,45 @@ pub(crate) fn packet_walk_avx2<const W: usize, const ORDERED: bool>(
     // SAFETY: the proof exists, so `detect` (its only maker) found AVX2 on
     // this CPU; the function has no other requirement.
     unsafe { packet_walk_avx2_impl::<W, ORDERED>(avx, bvh, p, tmax, leaf) }
+}
+
+/// [`crate::bvh::WideBvh::intersect_group`] over an 8-wide BVH compiled
+/// with AVX2, its node test ([`group_slab8_entry`]) and its leaves
+/// ([`crate::bvh::GroupLeaf::visit`], `#[inline(always)]`) inlined, as
+/// [`packet_walk_avx2`]'s are (handed to [`Avx2::run`] as a closure, the
+/// walk was left a function compiled without AVX2, its kernels calls:
+/// five times slower).
+#[cfg(target_arch = "x86_64")]
+pub(crate) fn intersect_group_avx2(
+    avx: Avx2,
+    bvh: &crate::bvh::Bvh8,
+    g: &mut crate::bvh::GroupRays,
+    len: usize,
+    stack: &mut Vec<crate::bvh::GroupEntry>,
+    shared: &mut (u64, u64),
+    leaf: &mut impl crate::bvh::GroupLeaf,
+) {
+    // SAFETY: the proof exists, so `detect` (its only maker) found AVX2 on
+    // this CPU; the function has no other requirement.
+    unsafe { intersect_group_avx2_impl(avx, bvh, g, len, stack, shared, leaf) }
+}
+
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn intersect_group_avx2_impl(
+    avx: Avx2,
+    bvh: &crate::bvh::Bvh8,
+    g: &mut crate::bvh::GroupRays,
+    len: usize,
+    stack: &mut Vec<crate::bvh::GroupEntry>,
+    shared: &mut (u64, u64),
+    leaf: &mut impl crate::bvh::GroupLeaf,
+) {
+    bvh.intersect_group(g, len, stack, shared, leaf, |n, g, m| {
+        group_slab8_entry(avx, n, g, m)
+    });
 }
 
 /// # Safety
@@ -1440,8 +1519,9 @@ mod tests {
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(2000))]
         /// The group kernel gives each ray of the group the children the
-        /// plain loops give it (each ray's one-ray test), on any boxes
-        /// (empty ones too) and rays (invalid ones, infinite and NaN
+        /// plain loops give it (each ray's one-ray test), and each child
+        /// the least entry distance of the rays that enter it, on any
+        /// boxes (empty ones too) and rays (invalid ones, infinite and NaN
         /// bounds too), for any subset of the group.
         #[test]
         fn avx_group_slab_matches_fallback(
@@ -1472,6 +1552,11 @@ mod tests {
             let avx = Avx2::detect().expect("AVX2, checked");
             let want = crate::bvh::group_slab_scalar(&node, &g, mask);
             prop_assert_eq!(group_slab8(avx, &node, &g, mask), want);
+            // With each child's least entry distance, bit for bit.
+            let (entered, least) = group_slab8_entry(avx, &node, &g, mask);
+            let (want_entered, want_least) = crate::bvh::group_slab_entry_scalar(&node, &g, mask);
+            prop_assert_eq!(entered, want_entered);
+            prop_assert_eq!(least.map(f32::to_bits), want_least.map(f32::to_bits));
         }
     }
 

@@ -11,13 +11,13 @@ mod wide;
 
 pub(crate) use build::{max_keep, min_keep};
 pub use build::{BvhBuilder, Clip};
-#[cfg(all(test, target_arch = "x86_64"))]
-pub(crate) use wide::group_slab_scalar;
 #[cfg(test)]
 pub(crate) use wide::slab_scalar;
+#[cfg(all(test, target_arch = "x86_64"))]
+pub(crate) use wide::{group_slab_entry_scalar, group_slab_scalar};
 pub use wide::{BoxRay, Bvh4, Bvh8, Node4, Node8, WideBvh, WideNode};
 #[cfg(target_arch = "x86_64")]
-pub(crate) use wide::{GroupRays, GROUP};
+pub(crate) use wide::{GroupEntry, GroupLeaf, GroupRays, GROUP};
 
 use crate::packet::{self, Packet8, PacketLeaf, LANES};
 use crate::prims::BLOCK;

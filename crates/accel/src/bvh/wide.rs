@@ -808,6 +808,57 @@ pub(crate) fn group_slab_scalar<const W: usize>(
     entered
 }
 
+/// [`group_slab_scalar`], and for each child the least entry distance
+/// among the rays that enter it (infinity where none does), each ray's
+/// as its one-ray node test gives it, taken in increasing ray order as
+/// `min_ps` takes them (`a < b ? a : b`): what `simd::group_slab8_entry`
+/// must give, which a test checks.
+#[cfg(all(test, target_arch = "x86_64"))]
+pub(crate) fn group_slab_entry_scalar<const W: usize>(
+    n: &WideNode<W>,
+    g: &GroupRays,
+    mut mask: u32,
+) -> ([u32; W], [f32; W]) {
+    let mut entered = [0u32; W];
+    let mut least = [f32::INFINITY; W];
+    let mut t = [0.0f32; W];
+    while mask != 0 {
+        let i = mask.trailing_zeros() as usize;
+        mask &= mask - 1;
+        let mut hits = slab_scalar(n, &g.ray(i), g.bound[i], &mut t);
+        while hits != 0 {
+            let k = hits.trailing_zeros() as usize;
+            hits &= hits - 1;
+            entered[k] |= 1 << i;
+            least[k] = if least[k] < t[k] { least[k] } else { t[k] };
+        }
+    }
+    (entered, least)
+}
+
+/// The leaves of a group's closest-hit walk ([`WideBvh::intersect_group`]).
+///
+/// A trait and not a closure, as [`PacketLeaf`] is, so that the leaf's
+/// `#[inline(always)]` inlines it into the walk's AVX2 code.
+#[cfg(target_arch = "x86_64")]
+pub(crate) trait GroupLeaf {
+    /// Tests ray `i` of the group against the leaf `first..first + count`:
+    /// its new `tmax` when it found a nearer hit there.
+    fn visit(&mut self, i: usize, first: u32, count: u32) -> Option<f32>;
+}
+
+/// A group walk's stack item: a node or leaf (`child`, `count` as a
+/// node's slot holds them), the rays of the group that entered it, and
+/// the least of their entry distances.
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct GroupEntry {
+    child: u32,
+    count: u32,
+    mask: u32,
+    entry: f32,
+}
+
 #[cfg(target_arch = "x86_64")]
 impl<const W: usize> WideBvh<W> {
     /// Which rays of a group (`g`'s first `len`, at most [`GROUP`], in one
@@ -884,6 +935,96 @@ impl<const W: usize> WideBvh<W> {
             }
         }
         start & !alive
+    }
+
+    /// Each ray's closest hit, for a group (`g`'s first `len` rays, at
+    /// most [`GROUP`], in one octant): [`GroupLeaf::visit`]`(i, first,
+    /// count)` tests ray `i` against a leaf and returns its new `tmax`
+    /// when it found a nearer hit there (the leaf keeps the hits), which
+    /// lowers the ray's culling bound in `g`.
+    ///
+    /// The rays walk the tree as one, as in [`Self::occluded_group`]; a
+    /// node's entered children are visited nearest first by the least
+    /// entry distance among their rays (`test(node, g, mask)` gives the
+    /// rays that enter each child and that distance), and a popped item
+    /// drops the rays whose culling bound has since fallen below it (each
+    /// such ray's own entry lies beyond its bound, so its one-ray walk
+    /// would not enter there either). Every ray meets every leaf that
+    /// could hold a hit nearer than its closest so far, so, as ties go to
+    /// the least index whatever the order, each gets its one-ray closest
+    /// hit. Embree walks only occlusion streams in groups; closest hits
+    /// share fewer nodes, and the caller measures whether they pay.
+    #[inline(always)]
+    pub(crate) fn intersect_group(
+        &self,
+        g: &mut GroupRays,
+        len: usize,
+        stack: &mut Vec<GroupEntry>,
+        shared: &mut (u64, u64),
+        leaf: &mut impl GroupLeaf,
+        test: impl Fn(&WideNode<W>, &GroupRays, u32) -> ([u32; W], [f32; W]),
+    ) {
+        assert!(len <= GROUP);
+        let nodes: &[WideNode<W>] = &self.nodes;
+        if nodes.is_empty() || len == 0 {
+            return;
+        }
+        stack.clear();
+        stack.push(GroupEntry {
+            child: 0,
+            count: 0,
+            mask: u32::MAX >> (GROUP - len),
+            entry: f32::NEG_INFINITY,
+        });
+        while let Some(item) = stack.pop() {
+            // The rays whose bound still reaches the item.
+            let mut reach = 0u32;
+            for (i, b) in g.bound.iter().enumerate() {
+                reach |= u32::from(item.entry <= *b) << i;
+            }
+            let mut m = item.mask & reach;
+            if m == 0 {
+                continue;
+            }
+            if item.count > 0 {
+                while m != 0 {
+                    let i = m.trailing_zeros() as usize;
+                    m &= m - 1;
+                    if let Some(t) = leaf.visit(i, item.child, item.count) {
+                        g.bound[i] = cull_bound(t);
+                    }
+                }
+                continue;
+            }
+            let n = &nodes[item.child as usize];
+            shared.0 += 1;
+            shared.1 += u64::from(m.count_ones());
+            let (entered, entry) = test(n, g, m);
+            // The entered children, farthest first (the nearest is pushed
+            // last and popped next).
+            let mut order = [0usize; W];
+            let mut h = 0;
+            for k in 0..W {
+                if entered[k] == 0 {
+                    continue;
+                }
+                let mut j = h;
+                while j > 0 && entry[order[j - 1]] < entry[k] {
+                    order[j] = order[j - 1];
+                    j -= 1;
+                }
+                order[j] = k;
+                h += 1;
+            }
+            for &k in &order[..h] {
+                stack.push(GroupEntry {
+                    child: n.child[k],
+                    count: n.count[k],
+                    mask: entered[k],
+                    entry: entry[k],
+                });
+            }
+        }
     }
 }
 
