@@ -56,9 +56,10 @@ pub struct Args {
     /// directions), most on meshes far larger than the caches. Over bvh4
     /// and bvh8, closest hits' runs of eight coherent rays (one octant, as
     /// a camera's) walk the tree as packets, and over bvh8 (with AVX2) any
-    /// hits walk in groups of 32 rays of one octant where the groups share
-    /// nodes; without either, interleaving is slower than one by one on
-    /// coherent rays. BVHs only (bvh-median, bvh-binned, bvh-sweep, bvh4,
+    /// hits, and closest hits of streams with no such run (diffuse
+    /// bounces), walk in groups of 32 rays of one octant where the groups
+    /// share nodes; without either, interleaving is slower than one by
+    /// one on coherent rays. BVHs only (bvh-median, bvh-binned, bvh-sweep, bvh4,
     /// bvh8); other structures trace one by one. Same hits, bit for bit.
     #[arg(long, conflicts_with = "packets")]
     pub stream: bool,
