@@ -769,11 +769,23 @@ impl<P: Primitives> Scene<P> {
         wide: WideRef<'_>,
         p: &Packet8,
     ) -> [Option<(u32, PrimHit)>; LANES] {
+        self.walk_packet_reach::<ANY>(wide, p).0
+    }
+
+    /// [`Self::walk_packet`], and how many leaves the packet visited and
+    /// the lanes those visits took, summed.
+    #[inline(always)]
+    fn walk_packet_reach<const ANY: bool>(
+        &self,
+        wide: WideRef<'_>,
+        p: &Packet8,
+    ) -> (PacketHits, (u32, u32)) {
         let mut tmax: [f32; LANES] = *p.tmax();
         let mut leaf = WalkLeaf::<P, ANY> {
             scene: self,
             p,
             best: [None; LANES],
+            reach: (0, 0),
         };
         match wide {
             WideRef::W4(b) if ANY => b.traverse_packet::<false>(p, &mut tmax, &mut leaf),
@@ -782,7 +794,7 @@ impl<P: Primitives> Scene<P> {
             WideRef::W8(b) => b.traverse_packet::<true>(p, &mut tmax, &mut leaf),
             WideRef::W2(b) => b.traverse_packet(p, &mut tmax, &mut leaf),
         }
-        leaf.best
+        (leaf.best, leaf.reach)
     }
 
     /// A packet's leaf (`first..first + count`) tested a block at a time
@@ -939,7 +951,13 @@ impl<P: Primitives> Scene<P> {
     /// 600000`), one thread, against interleaving (81aa57f): diffuse rays
     /// 1.28–1.60 times as fast, random rays 0.90–0.99 when they were
     /// probed and sorted too; left interleaved at once, random rays run
-    /// 1.00–1.03 times as fast as so. Where a hit is wanted too,
+    /// 1.00–1.03 times as fast as so. Where the packets' leaf visits
+    /// take few lanes (meshes whose triangles are small against the rays'
+    /// spacing: `PACKET_MIN_LANES`), the rest of the stream's coherent
+    /// runs join the groups too: primary and shadow rays over a 1M-triangle
+    /// terrain and a 2M-triangle sphere 1.22–1.30 times as fast, over a
+    /// 600K-triangle sphere 1.07 and 1.14, the small meshes level. Where a
+    /// hit is wanted too,
     /// [`Self::any_hit_stream`] gives the one-ray hits (in groups too, but
     /// without packets).
     pub fn occluded_stream(&self, rays: &[Ray], out: &mut [bool]) {
@@ -968,14 +986,20 @@ impl<P: Primitives> Scene<P> {
     ) {
         out.fill(false);
         let mut rest: Vec<usize> = Vec::with_capacity(rays.len());
+        // The leaf visits of the packets walked, and the lanes they took.
+        let mut reach = (0u64, 0u64);
         for (c, chunk) in rays.chunks(LANES).enumerate() {
             let first = c * LANES;
+            let few = (reach.1 as f64) < f64::from(policy.packet_lanes) * reach.0 as f64;
+            let packets = reach.0 < policy.packet_probe as u64 || !few;
             match <&[Ray; LANES]>::try_from(chunk) {
-                Ok(eight) if Packet8::coherent(eight) => {
-                    let best = self.walk_packet::<true>(WideRef::W8(bvh), &Packet8::build(eight));
+                Ok(eight) if packets && Packet8::coherent(eight) => {
+                    let (best, (leaves, lanes)) =
+                        self.walk_packet_reach::<true>(WideRef::W8(bvh), &Packet8::build(eight));
                     for (o, b) in out[first..][..LANES].iter_mut().zip(best) {
                         *o = b.is_some();
                     }
+                    reach = (reach.0 + u64::from(leaves), reach.1 + u64::from(lanes));
                 }
                 _ => rest.extend(first..first + chunk.len()),
             }
@@ -1439,14 +1463,42 @@ const SCATTER_PROBE: usize = 64;
 #[cfg(target_arch = "x86_64")]
 const SCATTER_FRACTION: f32 = 0.0625;
 
+/// The fewest lanes a packet's leaf visit must take on average, over an
+/// occlusion stream's first [`PACKET_PROBE`] leaf visits, for its other
+/// coherent runs to walk as packets too rather than in groups
+/// ([`Scene::occluded_stream`]). Where a mesh's triangles are small
+/// against the rays' spacing, a packet's lanes part before the leaves
+/// and each reaches its leaves alone, while groups of 32 share the nodes
+/// above and part as cheaply. Lanes a leaf visit took, 512² primary rays:
+/// bunny00 3.6, the dragon 4.9, the pig 4.8, polygon_mesh 3.3, a teapot
+/// in a stadium (`raymesh generate teapot-in-stadium --triangles
+/// 500000`) 6.3, where packets ran 1.14–1.47 times as fast as groups; a
+/// 600K- and a 2M-triangle sphere 2.2 and 1.5, a 1M-triangle terrain
+/// 1.4, where groups ran faster, shadow rays by 1.1–1.3 times. At 3.0,
+/// bunny00's and polygon_mesh's streams that fell below it cost them 4%
+/// and 8% on primary rays.
+#[cfg(target_arch = "x86_64")]
+const PACKET_MIN_LANES: f32 = 2.5;
+
+/// Leaf visits of an occlusion stream's packets before
+/// [`PACKET_MIN_LANES`] decides for its other coherent runs. Counted in
+/// leaf visits, not packets: a camera's packets that miss the mesh visit
+/// none, and the few at its silhouette would decide alone.
+#[cfg(target_arch = "x86_64")]
+const PACKET_PROBE: usize = 32;
+
 /// When [`Scene::first_hits_in_groups`] walks rays in groups and when it
-/// interleaves them: see there.
+/// interleaves them: see there; and when [`Scene::occluded_stream`]
+/// walks coherent runs as packets (`packet_lanes`, `packet_probe`: see
+/// [`PACKET_MIN_LANES`]).
 #[cfg(target_arch = "x86_64")]
 #[derive(Clone, Copy, Debug)]
 struct GroupPolicy {
     min_share: f32,
     probe: usize,
     scatter: f32,
+    packet_lanes: f32,
+    packet_probe: usize,
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -1456,12 +1508,16 @@ impl GroupPolicy {
         min_share: GROUP_MIN_SHARE,
         probe: GROUP_PROBE,
         scatter: SCATTER_FRACTION,
+        packet_lanes: PACKET_MIN_LANES,
+        packet_probe: PACKET_PROBE,
     };
     /// Closest hits.
     const CLOSEST: Self = Self {
         min_share: CLOSEST_MIN_SHARE,
         probe: GROUP_PROBE,
         scatter: SCATTER_FRACTION,
+        packet_lanes: PACKET_MIN_LANES,
+        packet_probe: PACKET_PROBE,
     };
 }
 
@@ -1540,6 +1596,8 @@ struct WalkLeaf<'a, 'r, P, const ANY: bool> {
     scene: &'a Scene<P>,
     p: &'a Packet8<'r>,
     best: [Option<(u32, PrimHit)>; LANES],
+    /// Leaves visited, and the lanes those visits took.
+    reach: (u32, u32),
 }
 
 impl<P: Primitives, const ANY: bool> PacketLeaf for WalkLeaf<'_, '_, P, ANY> {
@@ -1552,6 +1610,8 @@ impl<P: Primitives, const ANY: bool> PacketLeaf for WalkLeaf<'_, '_, P, ANY> {
         lanes: u32,
         tmax: &mut [f32; LANES],
     ) {
+        self.reach.0 += 1;
+        self.reach.1 += lanes.count_ones();
         let (scene, p, best) = (self.scene, self.p, &mut self.best);
         // A leaf tested lane by lane takes one block test per lane and
         // block; triangle by triangle, one packet test per primitive.
@@ -1585,6 +1645,9 @@ impl<P: Primitives, const ANY: bool> PacketLeaf for WalkLeaf<'_, '_, P, ANY> {
             });
     }
 }
+
+/// Each lane's hit of a packet walk (primitive in storage order, hit).
+type PacketHits = [Option<(u32, PrimHit)>; LANES];
 
 /// A BVH of any width, for the block traversal.
 #[derive(Clone, Copy)]
@@ -1683,8 +1746,9 @@ mod tests {
     /// Occlusion streams, and streams in groups for any and closest hits,
     /// give each ray's one-ray answer whichever way their rays go: all in
     /// groups, all interleaved after a probe of none, the switch after the
-    /// usual probe, all interleaved as scattered, and the default
-    /// policies, over streams of several lengths.
+    /// usual probe, all interleaved as scattered, coherent runs in groups
+    /// rather than packets, and the default policies, over streams of
+    /// several lengths.
     #[test]
     fn stream_groups_give_the_one_ray_answers() {
         let Some(avx) = Avx2::detect() else { return };
@@ -1699,6 +1763,7 @@ mod tests {
             min_share,
             probe,
             scatter,
+            ..GroupPolicy::ANY_HIT
         };
         let never = f32::INFINITY;
         for policy in [
@@ -1706,6 +1771,13 @@ mod tests {
             policy(never, 0, never),
             policy(never, GROUP_PROBE, never),
             policy(0.0, 0, 0.0),
+            // Coherent runs in groups after the first packet with a leaf
+            // (no leaf visit takes more than 8 lanes).
+            GroupPolicy {
+                packet_lanes: 9.0,
+                packet_probe: 0,
+                ..policy(0.0, 0, never)
+            },
             GroupPolicy::ANY_HIT,
             GroupPolicy::CLOSEST,
         ] {
