@@ -330,21 +330,12 @@ unsafe fn slab8_avx(node: *const f32, r: &BoxRay, bound: f32, t: *mut f32) -> u3
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 pub(crate) fn group_slab8<const W: usize>(
-    _avx: Avx2,
+    avx: Avx2,
     n: &WideNode<W>,
     g: &crate::bvh::GroupRays,
     mask: u32,
 ) -> [u32; W] {
-    assert!(W == 8);
-    let mut out = [0u32; W];
-    let mut entry = [0.0f32; W];
-    // SAFETY: the node holds W == 8 floats a row (64 in all), `out` 8
-    // words and `entry` 8 floats; the CPU has AVX2 (the `Avx2` proof).
-    unsafe {
-        let node = std::ptr::from_ref(n).cast();
-        group_slab8_avx::<false>(node, g, mask, out.as_mut_ptr(), entry.as_mut_ptr());
-    }
-    out
+    group_slab8_with::<false, W>(avx, n, g, mask).0
 }
 
 /// [`group_slab8`] that also gives, for each child, the least entry
@@ -355,6 +346,18 @@ pub(crate) fn group_slab8<const W: usize>(
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 pub(crate) fn group_slab8_entry<const W: usize>(
+    avx: Avx2,
+    n: &WideNode<W>,
+    g: &crate::bvh::GroupRays,
+    mask: u32,
+) -> ([u32; W], [f32; W]) {
+    group_slab8_with::<true, W>(avx, n, g, mask)
+}
+
+/// [`group_slab8_entry`], the entries computed only with `ENTRY`.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn group_slab8_with<const ENTRY: bool, const W: usize>(
     _avx: Avx2,
     n: &WideNode<W>,
     g: &crate::bvh::GroupRays,
@@ -363,17 +366,19 @@ pub(crate) fn group_slab8_entry<const W: usize>(
     assert!(W == 8);
     let mut out = [0u32; W];
     let mut entry = [0.0f32; W];
-    // SAFETY: as in `group_slab8`.
+    // SAFETY: the node holds W == 8 floats a row (64 in all), `out` 8
+    // words and `entry` 8 floats; the CPU has AVX2 (the `Avx2` proof).
     unsafe {
         let node = std::ptr::from_ref(n).cast();
-        group_slab8_avx::<true>(node, g, mask, out.as_mut_ptr(), entry.as_mut_ptr());
+        group_slab8_avx::<ENTRY>(node, g, mask, out.as_mut_ptr(), entry.as_mut_ptr());
     }
     (out, entry)
 }
 
 /// # Safety
 /// The CPU must have AVX2; `node` must point to a whole 8-wide node (64
-/// floats) and `out` to 8 writable words.
+/// floats), `out` to 8 writable words and `entry` to 8 writable floats
+/// (written only with `ENTRY`).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]

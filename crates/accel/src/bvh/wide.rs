@@ -791,21 +791,9 @@ impl GroupRays {
 pub(crate) fn group_slab_scalar<const W: usize>(
     n: &WideNode<W>,
     g: &GroupRays,
-    mut mask: u32,
+    mask: u32,
 ) -> [u32; W] {
-    let mut entered = [0u32; W];
-    let mut t = [0.0f32; W];
-    while mask != 0 {
-        let i = mask.trailing_zeros() as usize;
-        mask &= mask - 1;
-        let mut hits = slab_scalar(n, &g.ray(i), g.bound[i], &mut t);
-        while hits != 0 {
-            let k = hits.trailing_zeros() as usize;
-            hits &= hits - 1;
-            entered[k] |= 1 << i;
-        }
-    }
-    entered
+    group_slab_entry_scalar(n, g, mask).0
 }
 
 /// [`group_slab_scalar`], and for each child the least entry distance
