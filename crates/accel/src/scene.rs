@@ -1134,8 +1134,8 @@ impl<P: Primitives> Scene<P> {
     /// Calls `found(i, hit)` for each ray `rays[i]`, `i` in `which`, that
     /// hits anything, with its one-ray hit (closest, or with `any_hit` the
     /// one-ray any hit), the rays interleaved ([`Self::stream_each`]): in
-    /// place where `which` holds every ray, in order (as the callers make
-    /// it), else a copy of them in `which`'s order.
+    /// place where `which` is every ray in order, else a copy of them in
+    /// `which`'s order.
     #[cfg(target_arch = "x86_64")]
     fn interleave(
         &self,
@@ -1144,7 +1144,8 @@ impl<P: Primitives> Scene<P> {
         any_hit: bool,
         found: &mut impl FnMut(usize, (u32, u32, PrimHit)),
     ) {
-        let each = if which.len() == rays.len() {
+        let whole = which.len() == rays.len() && which.iter().enumerate().all(|(k, &i)| k == i);
+        let each = if whole {
             self.stream_each(rays, any_hit)
         } else {
             let others: Vec<Ray> = which.iter().map(|&i| rays[i]).collect();
@@ -1283,10 +1284,14 @@ impl<P: Primitives> Scene<P> {
         if self.scattered(rays.iter().map(Ray::origin), SCATTER_FRACTION) {
             return self.stream_each(rays, any_hit);
         }
-        let policy = if any_hit {
-            GroupPolicy::ANY_HIT
-        } else {
-            GroupPolicy::CLOSEST
+        let policy = GroupPolicy {
+            // Checked above.
+            scatter: f32::INFINITY,
+            ..if any_hit {
+                GroupPolicy::ANY_HIT
+            } else {
+                GroupPolicy::CLOSEST
+            }
         };
         let mut out = vec![None; rays.len()];
         let all: Vec<usize> = (0..rays.len()).collect();
