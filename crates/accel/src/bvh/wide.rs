@@ -992,10 +992,13 @@ impl<const W: usize> WideBvh<W> {
             // last and popped next).
             let mut order = [0usize; W];
             let mut h = 0;
-            for k in 0..W {
-                if entered[k] == 0 {
-                    continue;
-                }
+            let mut any = 0u32;
+            for (k, e) in entered.iter().enumerate() {
+                any |= u32::from(*e != 0) << k;
+            }
+            while any != 0 {
+                let k = any.trailing_zeros() as usize;
+                any &= any - 1;
                 let mut j = h;
                 while j > 0 && entry[order[j - 1]] < entry[k] {
                     order[j] = order[j - 1];
