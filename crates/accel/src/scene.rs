@@ -908,9 +908,10 @@ impl<P: Primitives> Scene<P> {
     /// node fetched and tested once for all the group's rays that enter
     /// it, unless its rays start scattered (random rays) or its first
     /// groups share too few nodes, which leave it interleaved: diffuse
-    /// rays 1.12–1.26 times as fast as interleaved on bunny00, the dragon
-    /// and the pig, level on a 600K-triangle sphere (`raymesh-peers
-    /// --stream --workloads diffuse --size 512 --accel bvh8`, one thread).
+    /// rays 1.16–1.32 times as fast as interleaved on bunny00, the dragon,
+    /// the pig and polygon_mesh, 1.07 on a 600K-triangle sphere
+    /// (`raymesh-peers --stream --workloads diffuse --size 512 --accel
+    /// bvh8`, one thread, against e280670).
     /// See `raymesh raycast --stream`. Other structures trace one by one.
     pub fn intersect_stream(&self, rays: &[Ray], out: &mut [Option<Hit>]) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
@@ -1447,7 +1448,8 @@ const GROUP_MIN_SHARE: f32 = 2.5;
 /// diffuse rays at 256² (bunny00, the dragon, the pig, polygon_mesh, a
 /// 600K-triangle sphere), 4.4, 5.9, 7.1, 4.4 and 3.5, where groups ran
 /// 1.12, 1.26, 1.13, 1.08 and 0.98 times as fast as interleaving (at
-/// 512²); random rays 1.7–2.4, where groups ran 0.5–0.8 times as fast.
+/// 512²; 1.21, 1.32, 1.16, 1.17 and 1.07 since 7113358); random rays
+/// 1.7–2.4, where groups ran 0.5–0.8 times as fast.
 #[cfg(target_arch = "x86_64")]
 const CLOSEST_MIN_SHARE: f32 = 3.0;
 
