@@ -824,6 +824,20 @@ pub(crate) fn group_slab_entry_scalar<const W: usize>(
     (entered, least)
 }
 
+/// The slots of a node that some ray of a group entered (`entered`: the
+/// rays that entered each slot), a bit each: the group walks visit them
+/// by their bits (a loop over all the slots with a branch each cost the
+/// closest-hit walk 5–11%).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn entered_slots<const W: usize>(entered: &[u32; W]) -> u32 {
+    let mut any = 0u32;
+    for (k, e) in entered.iter().enumerate() {
+        any |= u32::from(*e != 0) << k;
+    }
+    any
+}
+
 /// The leaves of a group's closest-hit walk ([`WideBvh::intersect_group`]).
 ///
 /// A trait and not a closure, as [`PacketLeaf`] is, so that the leaf's
@@ -910,10 +924,7 @@ impl<const W: usize> WideBvh<W> {
             shared.0 += 1;
             shared.1 += u64::from(m.count_ones());
             let entered = test(n, g, m);
-            let mut any = 0u32;
-            for (k, e) in entered.iter().enumerate() {
-                any |= u32::from(*e != 0) << k;
-            }
+            let mut any = entered_slots(&entered);
             // The last slot comes off the stack first, as in the one-ray
             // any-hit walk.
             while any != 0 {
@@ -992,10 +1003,7 @@ impl<const W: usize> WideBvh<W> {
             // last and popped next).
             let mut order = [0usize; W];
             let mut h = 0;
-            let mut any = 0u32;
-            for (k, e) in entered.iter().enumerate() {
-                any |= u32::from(*e != 0) << k;
-            }
+            let mut any = entered_slots(&entered);
             while any != 0 {
                 let k = any.trailing_zeros() as usize;
                 any &= any - 1;
