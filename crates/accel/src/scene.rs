@@ -956,8 +956,9 @@ impl<P: Primitives> Scene<P> {
     /// take few lanes (meshes whose triangles are small against the rays'
     /// spacing: `PACKET_MIN_LANES`), the rest of the stream's coherent
     /// runs join the groups too: primary and shadow rays over a 1M-triangle
-    /// terrain and a 2M-triangle sphere 1.22–1.30 times as fast, over a
-    /// 600K-triangle sphere 1.07 and 1.14, the small meshes level. Where a
+    /// terrain and a 2M-triangle sphere 1.21–1.45 times as fast, over a
+    /// 600K-triangle sphere 1.12 and 1.17, the small meshes within 1–2%
+    /// (229a8de against 0863f27, two alternations). Where a
     /// hit is wanted too,
     /// [`Self::any_hit_stream`] gives the one-ray hits (in groups too, but
     /// without packets).
@@ -1481,7 +1482,7 @@ const SCATTER_FRACTION: f32 = 0.0625;
 /// in a stadium (`raymesh generate teapot-in-stadium --triangles
 /// 500000`) 6.3, where packets ran 1.14–1.47 times as fast as groups; a
 /// 600K- and a 2M-triangle sphere 2.2 and 1.5, a 1M-triangle terrain
-/// 1.4, where groups ran faster, shadow rays by 1.1–1.3 times. At 3.0,
+/// 1.4, where groups ran faster, shadow rays by 1.1–1.5 times. At 3.0,
 /// bunny00's and polygon_mesh's streams that fell below it cost them 4%
 /// and 8% on primary rays.
 #[cfg(target_arch = "x86_64")]
