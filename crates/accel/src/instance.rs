@@ -9,7 +9,9 @@ use raymesh_geometry::{Aabb, Mat3, Mat4, Ray, Vec3};
 
 /// Most instances a scene may have for [`Surface::intersect8`] to trace
 /// packets through it (its lanes list the instances their rays enter,
-/// with no culling by the best hit; more instances trace ray by ray).
+/// with no culling by the best hit; more instances trace ray by ray), and
+/// for [`Surface::intersect_stream`] and [`Surface::occluded_stream`] to
+/// trace streams through it (each ray lists its instances the same way).
 pub const PACKET_INSTANCES: usize = 64;
 
 /// One placement of an object.
@@ -125,16 +127,10 @@ impl<S: Surface> Instances<S> {
         self.top.traverse(ray, counter, &mut |k| {
             let p = &self.placed[k as usize];
             let local = self.local_ray(p, ray, tmax);
-            if let Some(mut h) = bottom(&self.objects[p.object as usize], &local) {
-                let better = match best {
-                    None => true,
-                    Some(b) => h.t < b.t || (h.t == b.t && (k, h.prim) < (b.instance, b.prim)),
-                };
-                if better {
-                    h.instance = k;
-                    h.normal = (p.normal_matrix * h.normal).normalize_or_zero();
+            if let Some(h) = bottom(&self.objects[p.object as usize], &local) {
+                if better(best, k, &h) {
+                    best = Some(placed_hit(p, k, h));
                     tmax = h.t;
-                    best = Some(h);
                 }
             }
             tmax
@@ -168,6 +164,82 @@ impl<S: Surface> Instances<S> {
         }
         lanes
     }
+
+    /// For each ray of a stream, a bit per instance whose box it enters (a
+    /// scene of at most [`PACKET_INSTANCES`] instances).
+    fn stream_masks(&self, rays: &[Ray]) -> Vec<u64> {
+        rays.iter()
+            .map(|r| {
+                let mut m = 0u64;
+                self.top.traverse(r, &mut NoStats, &mut |k| {
+                    m |= 1 << k;
+                    r.tmax()
+                });
+                m
+            })
+            .collect()
+    }
+
+    /// Whether `ray` enters the box of a scene's one instance (whose
+    /// object the one-ray queries then ask).
+    fn enters_one(&self, ray: &Ray) -> bool {
+        let mut entered = false;
+        self.top.traverse(ray, &mut NoStats, &mut |_| {
+            entered = true;
+            f32::NEG_INFINITY
+        });
+        entered
+    }
+
+    /// The rays of a stream that enter instance `k`'s box (by `masks`, of
+    /// [`Self::stream_masks`]) and are given a bound by `bound(i)` (`None`:
+    /// the ray needs this instance no more): their indices into `which`,
+    /// and them carried into the object's space with that bound into
+    /// `local`, both in the stream's order (so that coherent runs stay
+    /// together).
+    fn gather(
+        &self,
+        k: usize,
+        rays: &[Ray],
+        masks: &[u64],
+        bound: impl Fn(usize) -> Option<f32>,
+        which: &mut Vec<usize>,
+        local: &mut Vec<Ray>,
+    ) {
+        which.clear();
+        local.clear();
+        let p = &self.placed[k];
+        for (i, (&m, r)) in masks.iter().zip(rays).enumerate() {
+            if m >> k & 1 != 0 {
+                if let Some(tmax) = bound(i) {
+                    which.push(i);
+                    local.push(self.local_ray(p, r, tmax));
+                }
+            }
+        }
+    }
+}
+
+/// Whether `h`, a hit in instance `k`, comes before `best`: the least
+/// `(t, instance, prim)`, so that the hit does not depend on the order
+/// in which instances are visited.
+fn better(best: Option<Hit>, k: u32, h: &Hit) -> bool {
+    match best {
+        None => true,
+        Some(b) => h.t < b.t || (h.t == b.t && (k, h.prim) < (b.instance, b.prim)),
+    }
+}
+
+/// An object's hit `h` as a hit of instance `k` placed by `p`: the
+/// instance noted, the normal carried to world space (as it is, under
+/// the identity: the object's unit normal, with no square root and
+/// division to make it unit again).
+fn placed_hit(p: &Placed, k: u32, mut h: Hit) -> Hit {
+    h.instance = k;
+    if !p.identity {
+        h.normal = (p.normal_matrix * h.normal).normalize_or_zero();
+    }
+    h
 }
 
 impl<S: Surface> Surface for Instances<S> {
@@ -203,18 +275,11 @@ impl<S: Surface> Surface for Instances<S> {
             });
             let hits = self.objects[p.object as usize].intersect8(&local);
             for (i, h) in hits.into_iter().enumerate() {
-                let Some(mut h) = h.filter(|_| m >> i & 1 != 0) else {
+                let Some(h) = h.filter(|_| m >> i & 1 != 0) else {
                     continue;
                 };
-                let k = k as u32;
-                let better = match best[i] {
-                    None => true,
-                    Some(b) => h.t < b.t || (h.t == b.t && (k, h.prim) < (b.instance, b.prim)),
-                };
-                if better {
-                    h.instance = k;
-                    h.normal = (p.normal_matrix * h.normal).normalize_or_zero();
-                    best[i] = Some(h);
+                if better(best[i], k as u32, &h) {
+                    best[i] = Some(placed_hit(p, k as u32, h));
                 }
             }
         }
@@ -247,6 +312,97 @@ impl<S: Surface> Surface for Instances<S> {
             }
         }
         found
+    }
+    /// Streams through a few instances: each ray lists the instances whose
+    /// boxes it enters, and each instance so listed traces the rays that
+    /// listed it, in the stream's order, as one stream of its object
+    /// (whose structure may take them as packets or groups), each bounded
+    /// by its best hit so far. The best hit is the least `(t, instance,
+    /// prim)`, whatever the order, so the hits are those of
+    /// [`Surface::intersect`] ray by ray. Scenes of more than
+    /// [`PACKET_INSTANCES`] instances trace ray by ray.
+    fn intersect_stream(&self, rays: &[Ray], out: &mut [Option<Hit>]) {
+        assert_eq!(rays.len(), out.len(), "one output per ray");
+        if self.placed.len() > PACKET_INSTANCES {
+            for (o, r) in out.iter_mut().zip(rays) {
+                *o = self.intersect(r);
+            }
+            return;
+        }
+        if let [p] = &self.placed[..] {
+            if p.identity {
+                // One object as it is: the stream goes to it whole, with
+                // no copy, and a hit stands if the ray enters the
+                // instance's box (as the one-ray walk asks first).
+                self.objects[p.object as usize].intersect_stream(rays, out);
+                for (o, r) in out.iter_mut().zip(rays) {
+                    *o = o
+                        .filter(|_| self.enters_one(r))
+                        .map(|h| placed_hit(p, 0, h));
+                }
+                return;
+            }
+        }
+        out.fill(None);
+        let masks = self.stream_masks(rays);
+        let (mut which, mut local, mut hits) = (Vec::new(), Vec::new(), Vec::new());
+        for (k, p) in self.placed.iter().enumerate() {
+            let bound = |i: usize| Some(out[i].map_or(rays[i].tmax(), |h: Hit| h.t));
+            self.gather(k, rays, &masks, bound, &mut which, &mut local);
+            if which.is_empty() {
+                continue;
+            }
+            hits.clear();
+            hits.resize(which.len(), None);
+            self.objects[p.object as usize].intersect_stream(&local, &mut hits);
+            for (&i, h) in which.iter().zip(&hits) {
+                if let Some(h) = *h {
+                    if better(out[i], k as u32, &h) {
+                        out[i] = Some(placed_hit(p, k as u32, h));
+                    }
+                }
+            }
+        }
+    }
+    /// Streams through a few instances, as [`Self::intersect_stream`]:
+    /// each instance that some ray enters tests the rays that entered it
+    /// and are not yet found occluded as one stream of its object. The
+    /// answers are those of [`Surface::occluded`] ray by ray.
+    fn occluded_stream(&self, rays: &[Ray], out: &mut [bool]) {
+        assert_eq!(rays.len(), out.len(), "one output per ray");
+        if self.placed.len() > PACKET_INSTANCES {
+            for (o, r) in out.iter_mut().zip(rays) {
+                *o = self.occluded(r);
+            }
+            return;
+        }
+        if let [p] = &self.placed[..] {
+            if p.identity {
+                // As in `intersect_stream`: the stream whole, the answers
+                // kept where the ray enters the instance's box.
+                self.objects[p.object as usize].occluded_stream(rays, out);
+                for (o, r) in out.iter_mut().zip(rays) {
+                    *o = *o && self.enters_one(r);
+                }
+                return;
+            }
+        }
+        out.fill(false);
+        let masks = self.stream_masks(rays);
+        let (mut which, mut local, mut found) = (Vec::new(), Vec::new(), Vec::new());
+        for (k, p) in self.placed.iter().enumerate() {
+            let bound = |i: usize| (!out[i]).then(|| rays[i].tmax());
+            self.gather(k, rays, &masks, bound, &mut which, &mut local);
+            if which.is_empty() {
+                continue;
+            }
+            found.clear();
+            found.resize(which.len(), false);
+            self.objects[p.object as usize].occluded_stream(&local, &mut found);
+            for (&i, &f) in which.iter().zip(&found) {
+                out[i] |= f;
+            }
+        }
     }
     fn occluded(&self, ray: &Ray) -> bool {
         let mut hit = false;

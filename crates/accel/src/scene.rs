@@ -81,6 +81,28 @@ pub trait Surface: Send + Sync {
     fn occluded8(&self, rays: &[Ray; LANES]) -> [bool; LANES] {
         rays.each_ref().map(|r| self.occluded(r))
     }
+    /// The closest hits of many rays: `out[i]` is [`Surface::intersect`]
+    /// of `rays[i]`. Structures that trace a stream together (a [`Scene`]
+    /// over a wide BVH: packets of its coherent runs, groups or
+    /// interleaving for the rest; [`crate::Instances`] over such scenes)
+    /// override it, with the same hits. Panics unless `out` has one entry
+    /// per ray.
+    fn intersect_stream(&self, rays: &[Ray], out: &mut [Option<Hit>]) {
+        assert_eq!(rays.len(), out.len(), "one output per ray");
+        for (o, r) in out.iter_mut().zip(rays) {
+            *o = self.intersect(r);
+        }
+    }
+    /// Whether each of many rays hits anything: `out[i]` is
+    /// [`Surface::occluded`] of `rays[i]` (a renderer's shadow rays
+    /// toward one light), overridden as [`Surface::intersect_stream`] is.
+    /// Panics unless `out` has one entry per ray.
+    fn occluded_stream(&self, rays: &[Ray], out: &mut [bool]) {
+        assert_eq!(rays.len(), out.len(), "one output per ray");
+        for (o, r) in out.iter_mut().zip(rays) {
+            *o = self.occluded(r);
+        }
+    }
     /// [`Surface::intersect`], adding the nodes visited and primitives
     /// tested to `stats` (heat maps use it).
     fn intersect_count(&self, ray: &Ray, stats: &mut CountStats) -> Option<Hit> {
@@ -1590,6 +1612,12 @@ impl<P: Primitives> Surface for Scene<P> {
     }
     fn occluded8(&self, rays: &[Ray; LANES]) -> [bool; LANES] {
         Scene::occluded8(self, rays)
+    }
+    fn intersect_stream(&self, rays: &[Ray], out: &mut [Option<Hit>]) {
+        Scene::intersect_stream(self, rays, out);
+    }
+    fn occluded_stream(&self, rays: &[Ray], out: &mut [bool]) {
+        Scene::occluded_stream(self, rays, out);
     }
     fn intersect_count(&self, ray: &Ray, stats: &mut CountStats) -> Option<Hit> {
         self.intersect_counted(ray, stats)

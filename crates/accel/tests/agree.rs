@@ -479,8 +479,9 @@ fn instances_agree_with_brute_top_level() {
     .is_err());
 }
 
-/// An object placed by the identity answers what the object alone does
-/// (the ray is carried over as it is, with no new `Ray` made).
+/// An object placed by the identity answers what the object alone does,
+/// normal included (the ray is carried over as it is, with no new `Ray`
+/// made, and the normal is not made unit again).
 #[test]
 fn identity_instances_are_the_object() {
     let m = load("elephant-with-holes.off");
@@ -496,16 +497,29 @@ fn identity_instances_are_the_object() {
             AccelKind::BvhBinned,
         )
         .unwrap();
+        let bits = |h: Option<Hit>| {
+            h.map(|h| {
+                let n = h.normal.to_array().map(f32::to_bits);
+                (h.prim, h.t.to_bits(), h.u.to_bits(), h.v.to_bits(), n)
+            })
+        };
         let mut hits = 0;
         for r in &rays {
             let (a, b) = (alone.intersect(r), placed.intersect(r));
-            let bare =
-                |h: Option<Hit>| h.map(|h| (h.prim, h.t.to_bits(), h.u.to_bits(), h.v.to_bits()));
-            assert_eq!(bare(a), bare(b), "{kind}: {r:?}");
+            assert_eq!(bits(a), bits(b), "{kind}: {r:?}");
             assert_eq!(alone.occluded(r), placed.occluded(r), "{kind}: {r:?}");
             hits += usize::from(a.is_some());
         }
         assert!(hits > rays.len() / 10);
+        // Streams through the one instance give the same answers.
+        let mut streamed = vec![None; rays.len()];
+        let mut occluded = vec![false; rays.len()];
+        placed.intersect_stream(&rays, &mut streamed);
+        placed.occluded_stream(&rays, &mut occluded);
+        for ((r, s), o) in rays.iter().zip(&streamed).zip(&occluded) {
+            assert_eq!(bits(*s), bits(placed.intersect(r)), "{kind}: stream, {r:?}");
+            assert_eq!(*o, placed.occluded(r), "{kind}: occluded stream, {r:?}");
+        }
     }
 }
 

@@ -42,6 +42,31 @@ fn check(s: &dyn Surface, rays: &[Ray], what: &str) -> usize {
     coherent
 }
 
+/// Checks `intersect_stream` and `occluded_stream` against `intersect`
+/// and `occluded` of each ray, over `rays` whole and over each of its
+/// halves; returns how many rays hit anything.
+fn check_streams(s: &dyn Surface, rays: &[Ray], what: &str) -> usize {
+    let half = rays.len() / 2;
+    let mut hits = 0;
+    for part in [rays, &rays[..half], &rays[half..]] {
+        let mut got = vec![None; part.len()];
+        let mut occluded = vec![true; part.len()];
+        s.intersect_stream(part, &mut got);
+        s.occluded_stream(part, &mut occluded);
+        for (i, r) in part.iter().enumerate() {
+            let want = s.intersect(r);
+            assert_eq!(key(got[i]), key(want), "{what}: stream, ray {i}: {r:?}");
+            assert_eq!(
+                occluded[i],
+                s.occluded(r),
+                "{what}: occluded stream, ray {i}"
+            );
+            hits += usize::from(want.is_some());
+        }
+    }
+    hits
+}
+
 /// Checks `any_hit8` on each packet of `rays` over a scene of `m`'s
 /// triangles: a lane has a hit exactly when its ray is occluded, and the
 /// hit is its triangle's own (the same bits of `t`, `u`, `v` as the
@@ -310,7 +335,10 @@ fn instances() {
         AccelKind::KdTree,
         AccelKind::Brute,
     ] {
-        check(&top(kind), &rays, &format!("instances under {kind}"));
+        let what = format!("instances under {kind}");
+        check(&top(kind), &rays, &what);
+        let hits = check_streams(&top(kind), &rays, &what);
+        assert!(hits >= 40, "{what}: only {hits} hits");
     }
 }
 
