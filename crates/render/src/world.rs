@@ -162,6 +162,18 @@ impl Surface for Object {
             Self::Shapes(s) => s.occluded8(rays),
         }
     }
+    fn intersect_stream(&self, rays: &[Ray], out: &mut [Option<Hit>]) {
+        match self {
+            Self::Mesh(s) => s.intersect_stream(rays, out),
+            Self::Shapes(s) => s.intersect_stream(rays, out),
+        }
+    }
+    fn occluded_stream(&self, rays: &[Ray], out: &mut [bool]) {
+        match self {
+            Self::Mesh(s) => s.occluded_stream(rays, out),
+            Self::Shapes(s) => s.occluded_stream(rays, out),
+        }
+    }
     fn intersect_count(&self, ray: &Ray, stats: &mut CountStats) -> Option<Hit> {
         match self {
             Self::Mesh(s) => s.intersect_counted(ray, stats),
@@ -626,6 +638,67 @@ impl World {
         color
     }
 
+    /// [`Self::trace`] of many rays at `depth` (a tile's camera rays at
+    /// 0), traced as streams: their closest hits together
+    /// ([`Surface::intersect_stream`]), then each light's shadow rays
+    /// ([`Surface::occluded_stream`]), then the mirror reflections as the
+    /// next depth's stream. The same answers as one by one, so the same
+    /// radiance, bit for bit, and the same rays counted; a stream whose
+    /// coherent runs make packets or groups (a camera's rays in 4 × 2
+    /// pixel blocks, shadow rays toward one light) is traced faster.
+    pub fn trace_stream(&self, camera: &[Ray], depth: u32, rays: &mut u64) -> Vec<Vec3> {
+        *rays += camera.len() as u64;
+        let mut hits = vec![None; camera.len()];
+        self.scene.intersect_stream(camera, &mut hits);
+        let points: Vec<Option<ShadePoint>> = camera
+            .iter()
+            .zip(&hits)
+            .map(|(r, h)| h.map(|h| self.shade_point(r, &h)))
+            .collect();
+        // The sums in `shade`'s order: ambient, each light in turn, mirror.
+        let mut color: Vec<Vec3> = points
+            .iter()
+            .map(|sp| match sp {
+                Some(sp) => sp.mat.ambient * self.ambient,
+                None => self.background,
+            })
+            .collect();
+        let (mut lit, mut shadow, mut blocked) = (Vec::new(), Vec::new(), Vec::new());
+        for light in &self.lights {
+            lit.clear();
+            for (i, sp) in points.iter().enumerate() {
+                if let Some(s) = sp.as_ref().and_then(|sp| sp.toward(light)) {
+                    lit.push((i, s));
+                }
+            }
+            *rays += lit.len() as u64;
+            shadow.clear();
+            shadow.extend(lit.iter().map(|(_, s)| s.ray));
+            blocked.clear();
+            blocked.resize(shadow.len(), false);
+            self.scene.occluded_stream(&shadow, &mut blocked);
+            for ((i, s), &b) in lit.iter().zip(&blocked) {
+                if let (false, Some(sp)) = (b, &points[*i]) {
+                    sp.add_lit(s, &mut color[*i]);
+                }
+            }
+        }
+        let (which, bounced): (Vec<usize>, Vec<Ray>) = points
+            .iter()
+            .enumerate()
+            .filter_map(|(i, sp)| Some((i, self.reflected(&camera[i], sp.as_ref()?, depth)?)))
+            .unzip();
+        if !bounced.is_empty() {
+            let radiance = self.trace_stream(&bounced, depth + 1, rays);
+            for (&i, r) in which.iter().zip(radiance) {
+                if let Some(sp) = &points[i] {
+                    color[i] += sp.mat.mirror * r;
+                }
+            }
+        }
+        color
+    }
+
     /// The radiance `ray` brings back from `hit` (the background on a miss).
     fn shade(&self, ray: &Ray, hit: Option<Hit>, depth: u32, rays: &mut u64) -> Vec3 {
         let Some(hit) = hit else {
@@ -676,12 +749,19 @@ impl World {
     /// The mirror reflection's radiance at `sp` (traced one by one), if
     /// its material reflects and `depth` allows another bounce.
     fn mirror(&self, ray: &Ray, sp: &ShadePoint, depth: u32, rays: &mut u64) -> Option<Vec3> {
+        let r = self.reflected(ray, sp, depth)?;
+        Some(sp.mat.mirror * self.trace(&r, depth + 1, rays))
+    }
+
+    /// The mirror reflection of `ray` at `sp`, if its material reflects
+    /// and `depth` allows another bounce.
+    fn reflected(&self, ray: &Ray, sp: &ShadePoint, depth: u32) -> Option<Ray> {
         if sp.mat.mirror == Vec3::ZERO || depth >= self.max_depth {
             return None;
         }
         let d = ray.dir().normalize();
         let r = d - 2.0 * d.dot(sp.n) * sp.n;
-        Some(sp.mat.mirror * self.trace(&Ray::infinite(sp.p, r), depth + 1, rays))
+        Some(Ray::infinite(sp.p, r))
     }
 
     /// Nodes visited plus primitives tested by the camera ray.

@@ -75,8 +75,9 @@ fn every_structure_renders_the_same_image() {
 }
 
 /// Eight camera rays traced together (`trace8`: the hits and then each
-/// light's shadow rays as packets) give each ray's radiance bit for bit
-/// and count the same rays as tracing them one by one, over a mesh and
+/// light's shadow rays as packets), and a stream of them (`trace_stream`),
+/// give each ray's radiance bit for bit and count the same rays as
+/// tracing them one by one, over a mesh and
 /// its instances under a structure that takes packets and one that does
 /// not; with several lanes shadowed, some lit, some missing everything.
 #[test]
@@ -91,6 +92,7 @@ fn packets_shade_as_one_by_one() {
         let world =
             World::build(&desc, Path::new("demo"), &|name| load_mesh(name, (96, 16))).unwrap();
         let (mut background, mut lit) = (0, 0);
+        let mut stream = Vec::new();
         for by in (0..h).step_by(2) {
             for bx in (0..w).step_by(4) {
                 let rays: [_; 8] = std::array::from_fn(|i| {
@@ -98,6 +100,7 @@ fn packets_shade_as_one_by_one() {
                     let (sx, sy) = ((x as f32 + 0.5) / w as f32, (y as f32 + 0.5) / h as f32);
                     world.camera.ray(sx, sy)
                 });
+                stream.extend(rays);
                 let (mut n8, mut n1) = (0u64, 0u64);
                 let got = world.trace8(&rays, &mut n8);
                 for (i, r) in rays.iter().enumerate() {
@@ -117,6 +120,29 @@ fn packets_shade_as_one_by_one() {
         assert!(
             background > 100 && lit > 1000,
             "{kind}: {background} background, {lit} lit"
+        );
+        // The whole image's camera rays as one stream (`trace_stream`:
+        // the hits, each light's shadow rays, then the mirror bounces as
+        // streams), and as streams of 200.
+        let (mut one, mut n1) = (Vec::new(), 0u64);
+        for r in &stream {
+            one.push(world.trace(r, 0, &mut n1));
+        }
+        let bits = |v: &Vec3| v.to_array().map(f32::to_bits);
+        for size in [stream.len(), 200] {
+            let mut ns = 0u64;
+            let got: Vec<Vec3> = stream
+                .chunks(size)
+                .flat_map(|c| world.trace_stream(c, 0, &mut ns))
+                .collect();
+            for (i, (g, o)) in got.iter().zip(&one).enumerate() {
+                assert_eq!(bits(g), bits(o), "{kind}: streams of {size}, ray {i}");
+            }
+            assert_eq!(ns, n1, "{kind}: rays counted, streams of {size}");
+        }
+        assert!(
+            n1 > 2 * stream.len() as u64,
+            "{kind}: few shadow and mirror rays"
         );
     }
 }
