@@ -79,10 +79,10 @@ pub struct Packet8<'a> {
     pub(crate) porigin: [[f32; LANES]; 3],
     /// Shear constants of each lane (see [`Ray::shear`]).
     pub(crate) shear: [[f32; LANES]; 3],
-    /// The triangle block kernel's row offsets for the axis order `k`
+    /// The triangle block kernel's axis offsets for the axis order `k`
     /// (every lane's: see [`crate::BlockRay`]).
     #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
-    pub(crate) block_rows: [usize; 9],
+    pub(crate) block_axes: [usize; 3],
     /// The watertight test's axis order `(kx, ky, kz)` (every lane's).
     k: [usize; 3],
     /// Which axes run backwards (the same for every lane).
@@ -263,7 +263,7 @@ impl<'a> Packet8<'a> {
             k,
             porigin: [origin[k[0]], origin[k[1]], origin[k[2]]],
             shear: *shear,
-            block_rows: crate::simd::kernel_rows(k),
+            block_axes: crate::simd::kernel_axes(k),
             frustum: finite.then_some(frustum),
         }
     }

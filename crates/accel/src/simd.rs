@@ -1095,9 +1095,11 @@ impl Avx2 {
 
 /// What the triangle kernel needs of a ray, computed once per ray instead
 /// of once per block: the shear constants, the origin with its axes
-/// permuted, `tmin`, and the offset in a group of each of the 9 rows the
-/// kernel reads (corner `c`, permuted axis `a`: row `3 * c + k[a]`, at
-/// `8 * row`). The same for any triangles: the grouped layout
+/// permuted, `tmin`, and the offset in a group of the first corner's row
+/// of each permuted axis (`k[a]`, at `8 * k[a]`); the kernel's 9 rows
+/// (corner `c`, permuted axis `a`: row `3 * c + k[a]`) are those plus a
+/// constant each (`kernel_row`), which the loads take as their
+/// displacement. The same for any triangles: the grouped layout
 /// ([`crate::Triangles`]) places rows alike whatever their number.
 #[derive(Clone, Copy, Debug, Default)]
 #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
@@ -1105,7 +1107,7 @@ pub struct BlockRay {
     shear: [f32; 3],
     origin: [f32; 3],
     tmin: f32,
-    rows: [usize; 9],
+    axes: [usize; 3],
 }
 
 impl BlockRay {
@@ -1117,7 +1119,7 @@ impl BlockRay {
             shear: s.to_array(),
             origin: ray.permute(ray.origin()).to_array(),
             tmin: ray.tmin(),
-            rows: std::array::from_fn(|r| kernel_row(r, k)),
+            axes: kernel_axes(k),
         }
     }
 }
@@ -1132,23 +1134,28 @@ impl BlockRay {
             shear: [p.shear[0][i], p.shear[1][i], p.shear[2][i]],
             origin: [p.porigin[0][i], p.porigin[1][i], p.porigin[2][i]],
             tmin: p.tmin[i],
-            rows: p.block_rows,
+            axes: p.block_axes,
         }
     }
 }
 
-/// The rows [`BlockRay::new`] gives a ray of axis order `k`.
+/// The offsets [`BlockRay::new`] gives a ray of axis order `k`: of the
+/// first corner's row of each permuted axis, each at most 16 (`k[a]`
+/// taken as at most 2, which a permutation's entries are).
 #[inline(always)]
-pub(crate) fn kernel_rows(k: [usize; 3]) -> [usize; 9] {
-    std::array::from_fn(|r| kernel_row(r, k))
+pub(crate) fn kernel_axes(k: [usize; 3]) -> [usize; 3] {
+    k.map(|a| a.min(2) * GROUP_SLOTS)
 }
 
 /// The offset in a group of the row the kernel reads as its row `r`
-/// (corner `r / 3`, axis `k[r % 3]` of the ray's permutation): at most
-/// 64, row 8's.
+/// (corner `r / 3`, axis `k[r % 3]` of the ray's permutation), from the
+/// ray's [`kernel_axes`]: at most 64, row 8's. `r` is a constant where
+/// the kernel is unrolled, so the corner's part folds into each load's
+/// displacement, and the kernel keeps three offsets live instead of nine.
+#[cfg(target_arch = "x86_64")]
 #[inline(always)]
-fn kernel_row(r: usize, k: [usize; 3]) -> usize {
-    (3 * (r / 3) + k[r % 3]).min(8) * GROUP_SLOTS
+fn kernel_row(r: usize, axes: [usize; 3]) -> usize {
+    axes[r % 3] + 3 * (r / 3) * GROUP_SLOTS
 }
 
 /// [`triangles8`] inside an AVX2 traversal: the ray's constants come
@@ -1167,14 +1174,14 @@ pub(crate) fn triangles8_pre(
 ) -> (u32, u32, BlockHits) {
     let (at, span) = block_at(first, count);
     assert!(at + block_reach(span) <= data.len());
-    // SAFETY: every row offset is at most 64 (a `BlockRay`'s come from
-    // `kernel_row`, or are zero by default), so each of the two loads of
+    // SAFETY: every row offset is at most 64 (a `BlockRay`'s axes come
+    // from `kernel_axes`, or are zero by default), so each of the two loads of
     // 8 lanes a row stays inside `data` (asserted); the CPU has AVX2 (the
     // `Avx2` proof).
     let (hit, out) = unsafe {
         triangles8_core(
             data.as_ptr().add(at),
-            |r| tr.rows[r],
+            |r| kernel_row(r, tr.axes),
             first % GROUP_SLOTS,
             span,
             tr.shear,
@@ -1208,13 +1215,13 @@ pub(crate) fn triangles8_lanes(
 ) {
     let (at, span) = block_at(first, count);
     assert!(at + block_reach(span) <= data.len());
-    // SAFETY: the packet's row offsets come from `kernel_rows`, each at
-    // most 64, so each of the two loads of 8 lanes a row stays inside
+    // SAFETY: the packet's row offsets come from `kernel_axes`, each row
+    // at most 64, so each of the two loads of 8 lanes a row stays inside
     // `data` (asserted); the CPU has AVX2 (the `Avx2` proof).
     let block = unsafe {
         load_block8(
             data.as_ptr().add(at),
-            |r| p.block_rows[r],
+            |r| kernel_row(r, p.block_axes),
             first % GROUP_SLOTS,
             span,
         )
@@ -1251,7 +1258,7 @@ unsafe fn triangles8_avx(
     unsafe {
         triangles8_core(
             rows,
-            |r| kernel_row(r, k),
+            |r| kernel_row(r, kernel_axes(k)),
             lane,
             span,
             s.to_array(),
