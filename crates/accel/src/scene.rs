@@ -791,23 +791,11 @@ impl<P: Primitives> Scene<P> {
         wide: WideRef<'_>,
         p: &Packet8,
     ) -> [Option<(u32, PrimHit)>; LANES] {
-        self.walk_packet_reach::<ANY>(wide, p).0
-    }
-
-    /// [`Self::walk_packet`], and how many leaves the packet visited and
-    /// the lanes those visits took, summed.
-    #[inline(always)]
-    fn walk_packet_reach<const ANY: bool>(
-        &self,
-        wide: WideRef<'_>,
-        p: &Packet8,
-    ) -> (PacketHits, (u32, u32)) {
         let mut tmax: [f32; LANES] = *p.tmax();
         let mut leaf = WalkLeaf::<P, ANY> {
             scene: self,
             p,
             best: [None; LANES],
-            reach: (0, 0),
         };
         match wide {
             WideRef::W4(b) if ANY => b.traverse_packet::<false>(p, &mut tmax, &mut leaf),
@@ -816,7 +804,7 @@ impl<P: Primitives> Scene<P> {
             WideRef::W8(b) => b.traverse_packet::<true>(p, &mut tmax, &mut leaf),
             WideRef::W2(b) => b.traverse_packet(p, &mut tmax, &mut leaf),
         }
-        (leaf.best, leaf.reach)
+        leaf.best
     }
 
     /// A packet's leaf (`first..first + count`) tested a block at a time
@@ -958,37 +946,36 @@ impl<P: Primitives> Scene<P> {
     }
 
     /// Whether each ray hits anything: `out[i]` is [`Self::occluded`] of
-    /// `rays[i]` (shadow rays, which need no hit). Over a wide BVH each
-    /// run of eight rays that makes a packet walks the tree as one (each
-    /// lane stopping at its first hit, whichever that is: whether it hits
-    /// is the one-ray answer), as [`Self::intersect_stream`] traces closest
-    /// hits. Over an 8-wide BVH on a CPU with AVX2 the other rays walk it
-    /// in groups of up to 32 of one octant, each node fetched and tested
-    /// once for all the group's rays that enter it (as Embree walks its
-    /// occlusion streams), unless they start scattered (random rays),
-    /// which leaves them interleaved, or the first groups share too few
-    /// nodes, which leaves the rest interleaved; elsewhere they are
-    /// interleaved. `raymesh-peers bunny00.off ChineseDragon-10kv.off
-    /// pig.stl sphere.ply --workloads random,diffuse --stream --size 512
-    /// --accel bvh8` (the last from `raymesh generate sphere --triangles
-    /// 600000`), one thread, against interleaving (81aa57f): diffuse rays
-    /// 1.28–1.60 times as fast, random rays 0.90–0.99 when they were
-    /// probed and sorted too; left interleaved at once, random rays run
-    /// 1.00–1.03 times as fast as so. Where the packets' leaf visits
-    /// take few lanes (meshes whose triangles are small against the rays'
-    /// spacing: `PACKET_MIN_LANES`), the rest of the stream's coherent
-    /// runs join the groups too: primary and shadow rays over a 1M-triangle
-    /// terrain and a 2M-triangle sphere 1.21–1.45 times as fast, over a
-    /// 600K-triangle sphere 1.12 and 1.17, the small meshes within 1–2%
-    /// (229a8de against 0863f27, two alternations). Where a
-    /// hit is wanted too,
-    /// [`Self::any_hit_stream`] gives the one-ray hits (in groups too, but
-    /// without packets).
+    /// `rays[i]` (shadow rays, which need no hit). Over an 8-wide BVH on a
+    /// CPU with AVX2 the rays walk it in groups of up to 32 of one octant,
+    /// each node fetched and tested once for all the group's rays that
+    /// enter it and each ray leaving at its first hit (as Embree walks its
+    /// occlusion streams; whether a ray hits is the one-ray answer),
+    /// unless they start scattered (random rays), which leaves them
+    /// interleaved, or the first groups share too few nodes, which leaves
+    /// the rest interleaved; over other wide BVHs each run of eight rays
+    /// that makes a packet walks the tree as one (each lane stopping at
+    /// its first hit), as [`Self::intersect_stream`] traces closest hits,
+    /// and the rest are interleaved. `raymesh-peers bunny00.off
+    /// ChineseDragon-10kv.off pig.stl sphere.ply --workloads
+    /// random,diffuse --stream --size 512 --accel bvh8` (the last from
+    /// `raymesh generate sphere --triangles 600000`), one thread, against
+    /// interleaving (81aa57f): diffuse rays 1.28–1.60 times as fast,
+    /// random rays 0.90–0.99 when they were probed and sorted too; left
+    /// interleaved at once, random rays run 1.00–1.03 times as fast as
+    /// so. Coherent runs (a camera's rays, shadow rays toward one light)
+    /// walked as packets until groups overtook them with 01f9a19: all in
+    /// groups, primary rays 1.01–1.08 and shadow rays 1.07–1.17 times as
+    /// fast as in packets over bunny00, the dragon, the pig and
+    /// polygon_mesh (two alternations), and 1.2–1.5 over meshes of
+    /// millions of triangles, whose packets' lanes part before the leaves.
+    /// Where a hit is wanted too, [`Self::any_hit_stream`] gives the
+    /// one-ray hits (in groups too).
     pub fn occluded_stream(&self, rays: &[Ray], out: &mut [bool]) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
         #[cfg(target_arch = "x86_64")]
         if let (Some(WideRef::W8(bvh)), Some(avx)) = (self.wide_blocks(), Avx2::detect()) {
-            self.occluded_packets_groups(bvh, avx, rays, out, GroupPolicy::ANY_HIT);
+            self.occluded_in_groups(bvh, avx, rays, out, GroupPolicy::ANY_HIT);
             return;
         }
         for (o, f) in out.iter_mut().zip(self.stream(rays, true, true)) {
@@ -996,11 +983,10 @@ impl<P: Primitives> Scene<P> {
         }
     }
 
-    /// [`Self::occluded_stream`] over an 8-wide BVH on a CPU with AVX2:
-    /// each run of eight rays that makes a packet as a packet, the others
-    /// by [`Self::first_hits_in_groups`] with `policy`.
+    /// [`Self::occluded_stream`] over an 8-wide BVH on a CPU with AVX2: the
+    /// whole stream by [`Self::first_hits_in_groups`] with `policy`.
     #[cfg(target_arch = "x86_64")]
-    fn occluded_packets_groups(
+    fn occluded_in_groups(
         &self,
         bvh: &Bvh8,
         avx: Avx2,
@@ -1009,26 +995,8 @@ impl<P: Primitives> Scene<P> {
         policy: GroupPolicy,
     ) {
         out.fill(false);
-        let mut rest: Vec<usize> = Vec::with_capacity(rays.len());
-        // The leaf visits of the packets walked, and the lanes they took.
-        let mut reach = (0u64, 0u64);
-        for (c, chunk) in rays.chunks(LANES).enumerate() {
-            let first = c * LANES;
-            let few = (reach.1 as f64) < f64::from(policy.packet_lanes) * reach.0 as f64;
-            let packets = reach.0 < policy.packet_probe as u64 || !few;
-            match <&[Ray; LANES]>::try_from(chunk) {
-                Ok(eight) if packets && Packet8::coherent(eight) => {
-                    let (best, (leaves, lanes)) =
-                        self.walk_packet_reach::<true>(WideRef::W8(bvh), &Packet8::build(eight));
-                    for (o, b) in out[first..][..LANES].iter_mut().zip(best) {
-                        *o = b.is_some();
-                    }
-                    reach = (reach.0 + u64::from(leaves), reach.1 + u64::from(lanes));
-                }
-                _ => rest.extend(first..first + chunk.len()),
-            }
-        }
-        self.first_hits_in_groups(bvh, avx, rays, &rest, true, policy, &mut |i, _| {
+        let all: Vec<usize> = (0..rays.len()).collect();
+        self.first_hits_in_groups(bvh, avx, rays, &all, true, policy, &mut |i, _| {
             out[i] = true;
         });
     }
@@ -1507,42 +1475,14 @@ const SCATTER_PROBE: usize = 64;
 #[cfg(target_arch = "x86_64")]
 const SCATTER_FRACTION: f32 = 0.0625;
 
-/// The fewest lanes a packet's leaf visit must take on average, over an
-/// occlusion stream's first [`PACKET_PROBE`] leaf visits, for its other
-/// coherent runs to walk as packets too rather than in groups
-/// ([`Scene::occluded_stream`]). Where a mesh's triangles are small
-/// against the rays' spacing, a packet's lanes part before the leaves
-/// and each reaches its leaves alone, while groups of 32 share the nodes
-/// above and part as cheaply. Lanes a leaf visit took, 512² primary rays:
-/// bunny00 3.6, the dragon 4.9, the pig 4.8, polygon_mesh 3.3, a teapot
-/// in a stadium (`raymesh generate teapot-in-stadium --triangles
-/// 500000`) 6.3, where packets ran 1.14–1.47 times as fast as groups; a
-/// 600K- and a 2M-triangle sphere 2.2 and 1.5, a 1M-triangle terrain
-/// 1.4, where groups ran faster, shadow rays by 1.1–1.5 times. At 3.0,
-/// bunny00's and polygon_mesh's streams that fell below it cost them 4%
-/// and 8% on primary rays.
-#[cfg(target_arch = "x86_64")]
-const PACKET_MIN_LANES: f32 = 2.5;
-
-/// Leaf visits of an occlusion stream's packets before
-/// [`PACKET_MIN_LANES`] decides for its other coherent runs. Counted in
-/// leaf visits, not packets: a camera's packets that miss the mesh visit
-/// none, and the few at its silhouette would decide alone.
-#[cfg(target_arch = "x86_64")]
-const PACKET_PROBE: usize = 32;
-
 /// When [`Scene::first_hits_in_groups`] walks rays in groups and when it
-/// interleaves them: see there; and when [`Scene::occluded_stream`]
-/// walks coherent runs as packets (`packet_lanes`, `packet_probe`: see
-/// [`PACKET_MIN_LANES`]).
+/// interleaves them: see there.
 #[cfg(target_arch = "x86_64")]
 #[derive(Clone, Copy, Debug)]
 struct GroupPolicy {
     min_share: f32,
     probe: usize,
     scatter: f32,
-    packet_lanes: f32,
-    packet_probe: usize,
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -1552,16 +1492,12 @@ impl GroupPolicy {
         min_share: GROUP_MIN_SHARE,
         probe: GROUP_PROBE,
         scatter: SCATTER_FRACTION,
-        packet_lanes: PACKET_MIN_LANES,
-        packet_probe: PACKET_PROBE,
     };
     /// Closest hits.
     const CLOSEST: Self = Self {
         min_share: CLOSEST_MIN_SHARE,
         probe: GROUP_PROBE,
         scatter: SCATTER_FRACTION,
-        packet_lanes: PACKET_MIN_LANES,
-        packet_probe: PACKET_PROBE,
     };
 }
 
@@ -1646,8 +1582,6 @@ struct WalkLeaf<'a, 'r, P, const ANY: bool> {
     scene: &'a Scene<P>,
     p: &'a Packet8<'r>,
     best: [Option<(u32, PrimHit)>; LANES],
-    /// Leaves visited, and the lanes those visits took.
-    reach: (u32, u32),
 }
 
 impl<P: Primitives, const ANY: bool> PacketLeaf for WalkLeaf<'_, '_, P, ANY> {
@@ -1660,8 +1594,6 @@ impl<P: Primitives, const ANY: bool> PacketLeaf for WalkLeaf<'_, '_, P, ANY> {
         lanes: u32,
         tmax: &mut [f32; LANES],
     ) {
-        self.reach.0 += 1;
-        self.reach.1 += lanes.count_ones();
         let (scene, p, best) = (self.scene, self.p, &mut self.best);
         // A leaf tested lane by lane takes one block test per lane and
         // block; triangle by triangle, one packet test per primitive.
@@ -1695,9 +1627,6 @@ impl<P: Primitives, const ANY: bool> PacketLeaf for WalkLeaf<'_, '_, P, ANY> {
             });
     }
 }
-
-/// Each lane's hit of a packet walk (primitive in storage order, hit).
-type PacketHits = [Option<(u32, PrimHit)>; LANES];
 
 /// A BVH of any width, for the block traversal.
 #[derive(Clone, Copy)]
@@ -1796,9 +1725,8 @@ mod tests {
     /// Occlusion streams, and streams in groups for any and closest hits,
     /// give each ray's one-ray answer whichever way their rays go: all in
     /// groups, all interleaved after a probe of none, the switch after the
-    /// usual probe, all interleaved as scattered, coherent runs in groups
-    /// rather than packets, and the default policies, over streams of
-    /// several lengths.
+    /// usual probe, all interleaved as scattered, and the default
+    /// policies, over streams of several lengths.
     #[test]
     fn stream_groups_give_the_one_ray_answers() {
         let Some(avx) = Avx2::detect() else { return };
@@ -1813,7 +1741,6 @@ mod tests {
             min_share,
             probe,
             scatter,
-            ..GroupPolicy::ANY_HIT
         };
         let never = f32::INFINITY;
         for policy in [
@@ -1821,19 +1748,12 @@ mod tests {
             policy(never, 0, never),
             policy(never, GROUP_PROBE, never),
             policy(0.0, 0, 0.0),
-            // Coherent runs in groups after the first packet with a leaf
-            // (no leaf visit takes more than 8 lanes).
-            GroupPolicy {
-                packet_lanes: 9.0,
-                packet_probe: 0,
-                ..policy(0.0, 0, never)
-            },
             GroupPolicy::ANY_HIT,
             GroupPolicy::CLOSEST,
         ] {
             for n in [rays.len(), 1000, 97, 33, 8, 1, 0] {
                 let mut got = vec![true; n];
-                s.occluded_packets_groups(bvh, avx, &rays[..n], &mut got, policy);
+                s.occluded_in_groups(bvh, avx, &rays[..n], &mut got, policy);
                 for i in 0..n {
                     assert_eq!(got[i], want[i], "ray {i} of {n}, {policy:?}: {:?}", rays[i]);
                 }
