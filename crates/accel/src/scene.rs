@@ -951,24 +951,21 @@ impl<P: Primitives> Scene<P> {
     /// each node fetched and tested once for all the group's rays that
     /// enter it and each ray leaving at its first hit (as Embree walks its
     /// occlusion streams; whether a ray hits is the one-ray answer),
-    /// unless they start scattered (random rays), which leaves them
-    /// interleaved, or the first groups share too few nodes, which leaves
-    /// the rest interleaved; over other wide BVHs each run of eight rays
-    /// that makes a packet walks the tree as one (each lane stopping at
-    /// its first hit), as [`Self::intersect_stream`] traces closest hits,
-    /// and the rest are interleaved. `raymesh-peers bunny00.off
-    /// ChineseDragon-10kv.off pig.stl sphere.ply --workloads
+    /// unless the first groups share too few nodes (`GROUP_MIN_SHARE`),
+    /// which leaves the rest interleaved; over other wide BVHs each run of
+    /// eight rays that makes a packet walks the tree as one (each lane
+    /// stopping at its first hit), as [`Self::intersect_stream`] traces
+    /// closest hits, and the rest are interleaved. `raymesh-peers
+    /// bunny00.off ChineseDragon-10kv.off pig.stl sphere.ply --workloads
     /// random,diffuse --stream --size 512 --accel bvh8` (the last from
     /// `raymesh generate sphere --triangles 600000`), one thread, against
-    /// interleaving (81aa57f): diffuse rays 1.28–1.60 times as fast,
-    /// random rays 0.90–0.99 when they were probed and sorted too; left
-    /// interleaved at once, random rays run 1.00–1.03 times as fast as
-    /// so. Coherent runs (a camera's rays, shadow rays toward one light)
-    /// walked as packets until groups overtook them with 01f9a19: all in
-    /// groups, primary rays 1.01–1.08 and shadow rays 1.07–1.17 times as
-    /// fast as in packets over bunny00, the dragon, the pig and
-    /// polygon_mesh (two alternations), and 1.2–1.5 over meshes of
-    /// millions of triangles, whose packets' lanes part before the leaves.
+    /// interleaving (81aa57f): diffuse rays 1.28–1.60 times as fast.
+    /// Coherent runs (a camera's rays, shadow rays toward one light)
+    /// walked as packets until groups overtook them with 01f9a19: in
+    /// groups, primary rays 1.03–1.09 and shadow rays 1.10–1.20 times as
+    /// fast over bunny00, the dragon, the pig and polygon_mesh (402eeab,
+    /// two alternations), and 1.2–1.5 times over meshes of millions of
+    /// triangles, whose packets' lanes part before the leaves (0863f27).
     /// Where a hit is wanted too, [`Self::any_hit_stream`] gives the
     /// one-ray hits (in groups too).
     pub fn occluded_stream(&self, rays: &[Ray], out: &mut [bool]) {
@@ -1444,9 +1441,21 @@ const KD_GATHER_BLOCK: usize = 2;
 /// 1.61, diffuse 4.29; 3.46, shadow 10.4; 7.3, primary 12.1; 8.5. In
 /// groups, random rays ran 0.96 and 0.57 times as fast as interleaved
 /// (the sphere's tree, past the caches, is where interleaving's
-/// prefetches pay), diffuse rays 1.43 and 1.27 times.
+/// prefetches pay), diffuse rays 1.43 and 1.27 times; the threshold was
+/// 2.5 then, and scattered streams (random rays) were interleaved at
+/// once. Since the groups' set-up costs less (01f9a19), random rays in
+/// groups run 1.10–1.46 times as fast as interleaved where they share
+/// 1.95 rays a visit or more (the pig 2.23, the dragon 2.06,
+/// polygon_mesh 1.95; a teapot in a stadium, whose stadium ends many
+/// rays near the root, 3.56) and 0.53–0.64 times where they share 1.64
+/// or fewer (the 600K sphere 1.64, a 2M sphere 1.51, a 1M terrain 1.48);
+/// bunny00, 1.84, about level. So occlusion streams are probed whatever
+/// their origins, at 1.75 (`raymesh-peers --stream --workloads random
+/// --size 512 --accel bvh8`, two alternations: the first four 1.11–1.46
+/// times as fast as at 402eeab, bunny00 0.98, the large meshes 0.95–0.96,
+/// what their probes cost).
 #[cfg(target_arch = "x86_64")]
-const GROUP_MIN_SHARE: f32 = 2.5;
+const GROUP_MIN_SHARE: f32 = 1.75;
 
 /// [`GROUP_MIN_SHARE`] for closest hits ([`Scene::intersect_stream`]),
 /// which need more sharing for a gain: rays a node visit took in groups,
@@ -1468,8 +1477,9 @@ const GROUP_PROBE: usize = 64;
 const SCATTER_PROBE: usize = 64;
 
 /// How far apart, as a fraction of the scene box's diagonal, neighbouring
-/// rays of a stream start on average for [`Scene::scattered`] to leave
-/// the stream interleaved. BENCH.md's random rays start about a diagonal
+/// rays of a closest-hit stream start on average for [`Scene::scattered`]
+/// to leave the stream interleaved (occlusion streams are always probed:
+/// [`GROUP_MIN_SHARE`]). BENCH.md's random rays start about a diagonal
 /// apart; a camera's diffuse bounces from neighbouring pixels, a few
 /// thousandths except across silhouettes.
 #[cfg(target_arch = "x86_64")]
@@ -1491,7 +1501,8 @@ impl GroupPolicy {
     const ANY_HIT: Self = Self {
         min_share: GROUP_MIN_SHARE,
         probe: GROUP_PROBE,
-        scatter: SCATTER_FRACTION,
+        // Never taken as scattered: see GROUP_MIN_SHARE.
+        scatter: f32::INFINITY,
     };
     /// Closest hits.
     const CLOSEST: Self = Self {
