@@ -80,7 +80,7 @@ struct Args {
     /// stream call (raymesh `Scene::intersect_stream`/`occluded_stream`,
     /// which interleave rays over the binary and wide BVHs and walk runs
     /// of eight coherent rays over the wide ones as packets, and whose
-    /// occlusion streams over `bvh8` walk their other rays, and closest
+    /// occlusion streams over `bvh8` walk all their rays, and closest
     /// hits all the rays of a stream with no such run, in groups of 32
     /// where the groups share nodes; Embree
     /// `rtcIntersect1M`/`rtcOccluded1M` with the incoherent hint), closest
