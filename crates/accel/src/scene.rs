@@ -83,7 +83,7 @@ pub trait Surface: Send + Sync {
     }
     /// The closest hits of many rays: `out[i]` is [`Surface::intersect`]
     /// of `rays[i]`. Structures that trace a stream together (a [`Scene`]
-    /// over a wide BVH: packets of its coherent runs, groups or
+    /// over a BVH: packets of its coherent runs, groups or
     /// interleaving for the rest; [`crate::Instances`] over such scenes)
     /// override it, with the same hits. Panics unless `out` has one entry
     /// per ray.
@@ -912,7 +912,10 @@ impl<P: Primitives> Scene<P> {
     /// primary rays 8.4 -> 15.5 and 8.1 -> 16.0 Mrays/s, shadow rays 7.0
     /// -> 11.5 and 5.5 -> 10.1; random and diffuse rays, which make no
     /// packets, level: the runs are checked first, and a stream with no
-    /// packet goes to the interleaved walk whole). Over an 8-wide BVH on
+    /// packet goes to the interleaved walk whole), and over a binary BVH
+    /// too since a renderer's streams showed it missing (`--accel
+    /// bvh-binned`, bunny00: primary rays 5.26 -> 12.24, shadow rays 3.77
+    /// -> 9.47; diffuse level). Over an 8-wide BVH on
     /// a CPU with AVX2, a stream with no packet walks in groups of up to
     /// 32 rays of one octant instead (`Bvh8::intersect_group`), each
     /// node fetched and tested once for all the group's rays that enter
@@ -952,7 +955,7 @@ impl<P: Primitives> Scene<P> {
     /// enter it and each ray leaving at its first hit (as Embree walks its
     /// occlusion streams; whether a ray hits is the one-ray answer),
     /// unless the first groups share too few nodes (`GROUP_MIN_SHARE`),
-    /// which leaves the rest interleaved; over other wide BVHs each run of
+    /// which leaves the rest interleaved; over other BVHs each run of
     /// eight rays that makes a packet walks the tree as one (each lane
     /// stopping at its first hit), as [`Self::intersect_stream`] traces
     /// closest hits, and the rest are interleaved. `raymesh-peers
@@ -1202,7 +1205,7 @@ impl<P: Primitives> Scene<P> {
     /// With `packets`, each run of eight rays (from the stream's start)
     /// that makes a packet ([`Packet8`]: one octant and axis order, as a
     /// camera's neighbouring pixels or shadow rays toward one light do)
-    /// walks a wide BVH as one; the other rays are interleaved as before.
+    /// walks the BVH as one; the other rays are interleaved as before.
     /// A packet gives each ray its one-by-one closest hit bit for bit, but
     /// with `any_hit` only whether it hits (a lane may find another hit
     /// than the ray alone): [`Self::occluded_stream`]'s answer.
@@ -1221,7 +1224,7 @@ impl<P: Primitives> Scene<P> {
             }
         }
         let wide = match self.wide_blocks() {
-            Some(w @ (WideRef::W4(_) | WideRef::W8(_))) if packets => w,
+            Some(w) if packets => w,
             _ => return self.stream_each(rays, any_hit),
         };
         // Which runs make packets, found first.
