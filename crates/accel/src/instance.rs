@@ -180,6 +180,67 @@ impl<S: Surface> Instances<S> {
             .collect()
     }
 
+    /// The walk both stream queries share, over answers of type `T`
+    /// (`T::default()`: no hit): each ray's `one(ray)` in a scene of more
+    /// than [`PACKET_INSTANCES`] instances; else, instance by instance,
+    /// `whole(object, rays, answers)` of the rays that enter its box and
+    /// to which `bound(answer so far, ray)` gives a bound, carried into
+    /// the object's space with it, each answer handed to `merge(answer so
+    /// far, instance, placement, answer)`. One identity instance takes
+    /// the stream whole, with no copy, each answer merged where its ray
+    /// enters the instance's box (as the one-ray walk asks first).
+    fn stream_query<T: Copy + Default>(
+        &self,
+        rays: &[Ray],
+        out: &mut [T],
+        one: impl Fn(&Ray) -> T,
+        whole: impl Fn(&S, &[Ray], &mut [T]),
+        bound: impl Fn(&T, &Ray) -> Option<f32>,
+        merge: impl Fn(&mut T, u32, &Placed, T),
+    ) {
+        assert_eq!(rays.len(), out.len(), "one output per ray");
+        if self.placed.len() > PACKET_INSTANCES {
+            for (o, r) in out.iter_mut().zip(rays) {
+                *o = one(r);
+            }
+            return;
+        }
+        if let [p] = &self.placed[..] {
+            if p.identity {
+                whole(&self.objects[p.object as usize], rays, out);
+                for (o, r) in out.iter_mut().zip(rays) {
+                    let answer = std::mem::take(o);
+                    if self.enters_one(r) {
+                        merge(o, 0, p, answer);
+                    }
+                }
+                return;
+            }
+        }
+        out.fill(T::default());
+        let masks = self.stream_masks(rays);
+        let (mut which, mut local, mut answers) = (Vec::new(), Vec::new(), Vec::new());
+        for (k, p) in self.placed.iter().enumerate() {
+            self.gather(
+                k,
+                rays,
+                &masks,
+                |i| bound(&out[i], &rays[i]),
+                &mut which,
+                &mut local,
+            );
+            if which.is_empty() {
+                continue;
+            }
+            answers.clear();
+            answers.resize(which.len(), T::default());
+            whole(&self.objects[p.object as usize], &local, &mut answers);
+            for (&i, &a) in which.iter().zip(&answers) {
+                merge(&mut out[i], k as u32, p, a);
+            }
+        }
+    }
+
     /// Whether `ray` enters the box of a scene's one instance (whose
     /// object the one-ray queries then ask).
     fn enters_one(&self, ray: &Ray) -> bool {
@@ -322,87 +383,32 @@ impl<S: Surface> Surface for Instances<S> {
     /// [`Surface::intersect`] ray by ray. Scenes of more than
     /// [`PACKET_INSTANCES`] instances trace ray by ray.
     fn intersect_stream(&self, rays: &[Ray], out: &mut [Option<Hit>]) {
-        assert_eq!(rays.len(), out.len(), "one output per ray");
-        if self.placed.len() > PACKET_INSTANCES {
-            for (o, r) in out.iter_mut().zip(rays) {
-                *o = self.intersect(r);
-            }
-            return;
-        }
-        if let [p] = &self.placed[..] {
-            if p.identity {
-                // One object as it is: the stream goes to it whole, with
-                // no copy, and a hit stands if the ray enters the
-                // instance's box (as the one-ray walk asks first).
-                self.objects[p.object as usize].intersect_stream(rays, out);
-                for (o, r) in out.iter_mut().zip(rays) {
-                    *o = o
-                        .filter(|_| self.enters_one(r))
-                        .map(|h| placed_hit(p, 0, h));
+        self.stream_query(
+            rays,
+            out,
+            |r| self.intersect(r),
+            |obj, local, hits| obj.intersect_stream(local, hits),
+            |best, r| Some(best.map_or(r.tmax(), |h| h.t)),
+            |best, k, p, h| {
+                if let Some(h) = h.filter(|h| better(*best, k, h)) {
+                    *best = Some(placed_hit(p, k, h));
                 }
-                return;
-            }
-        }
-        out.fill(None);
-        let masks = self.stream_masks(rays);
-        let (mut which, mut local, mut hits) = (Vec::new(), Vec::new(), Vec::new());
-        for (k, p) in self.placed.iter().enumerate() {
-            let bound = |i: usize| Some(out[i].map_or(rays[i].tmax(), |h: Hit| h.t));
-            self.gather(k, rays, &masks, bound, &mut which, &mut local);
-            if which.is_empty() {
-                continue;
-            }
-            hits.clear();
-            hits.resize(which.len(), None);
-            self.objects[p.object as usize].intersect_stream(&local, &mut hits);
-            for (&i, h) in which.iter().zip(&hits) {
-                if let Some(h) = *h {
-                    if better(out[i], k as u32, &h) {
-                        out[i] = Some(placed_hit(p, k as u32, h));
-                    }
-                }
-            }
-        }
+            },
+        );
     }
     /// Streams through a few instances, as [`Self::intersect_stream`]:
     /// each instance that some ray enters tests the rays that entered it
     /// and are not yet found occluded as one stream of its object. The
     /// answers are those of [`Surface::occluded`] ray by ray.
     fn occluded_stream(&self, rays: &[Ray], out: &mut [bool]) {
-        assert_eq!(rays.len(), out.len(), "one output per ray");
-        if self.placed.len() > PACKET_INSTANCES {
-            for (o, r) in out.iter_mut().zip(rays) {
-                *o = self.occluded(r);
-            }
-            return;
-        }
-        if let [p] = &self.placed[..] {
-            if p.identity {
-                // As in `intersect_stream`: the stream whole, the answers
-                // kept where the ray enters the instance's box.
-                self.objects[p.object as usize].occluded_stream(rays, out);
-                for (o, r) in out.iter_mut().zip(rays) {
-                    *o = *o && self.enters_one(r);
-                }
-                return;
-            }
-        }
-        out.fill(false);
-        let masks = self.stream_masks(rays);
-        let (mut which, mut local, mut found) = (Vec::new(), Vec::new(), Vec::new());
-        for (k, p) in self.placed.iter().enumerate() {
-            let bound = |i: usize| (!out[i]).then(|| rays[i].tmax());
-            self.gather(k, rays, &masks, bound, &mut which, &mut local);
-            if which.is_empty() {
-                continue;
-            }
-            found.clear();
-            found.resize(which.len(), false);
-            self.objects[p.object as usize].occluded_stream(&local, &mut found);
-            for (&i, &f) in which.iter().zip(&found) {
-                out[i] |= f;
-            }
-        }
+        self.stream_query(
+            rays,
+            out,
+            |r| self.occluded(r),
+            |obj, local, found| obj.occluded_stream(local, found),
+            |&found, r| (!found).then(|| r.tmax()),
+            |found, _, _, f| *found |= f,
+        );
     }
     fn occluded(&self, ray: &Ray) -> bool {
         let mut hit = false;
