@@ -638,19 +638,19 @@ impl World {
         color
     }
 
-    /// [`Self::trace`] of many rays at `depth` (a tile's camera rays at
-    /// 0), traced as streams: their closest hits together
+    /// [`Self::trace`] of each ray of `stream` at `depth` (a tile's camera
+    /// rays at 0), traced as streams: their closest hits together
     /// ([`Surface::intersect_stream`]), then each light's shadow rays
     /// ([`Surface::occluded_stream`]), then the mirror reflections as the
     /// next depth's stream. The same answers as one by one, so the same
     /// radiance, bit for bit, and the same rays counted; a stream whose
     /// coherent runs make packets or groups (a camera's rays in 4 × 2
     /// pixel blocks, shadow rays toward one light) is traced faster.
-    pub fn trace_stream(&self, camera: &[Ray], depth: u32, rays: &mut u64) -> Vec<Vec3> {
-        *rays += camera.len() as u64;
-        let mut hits = vec![None; camera.len()];
-        self.scene.intersect_stream(camera, &mut hits);
-        let points: Vec<Option<ShadePoint>> = camera
+    pub fn trace_stream(&self, stream: &[Ray], depth: u32, rays: &mut u64) -> Vec<Vec3> {
+        *rays += stream.len() as u64;
+        let mut hits = vec![None; stream.len()];
+        self.scene.intersect_stream(stream, &mut hits);
+        let points: Vec<Option<ShadePoint>> = stream
             .iter()
             .zip(&hits)
             .map(|(r, h)| h.map(|h| self.shade_point(r, &h)))
@@ -686,7 +686,7 @@ impl World {
         let (which, bounced): (Vec<usize>, Vec<Ray>) = points
             .iter()
             .enumerate()
-            .filter_map(|(i, sp)| Some((i, self.reflected(&camera[i], sp.as_ref()?, depth)?)))
+            .filter_map(|(i, sp)| Some((i, self.reflected(&stream[i], sp.as_ref()?, depth)?)))
             .unzip();
         if !bounced.is_empty() {
             let radiance = self.trace_stream(&bounced, depth + 1, rays);
