@@ -340,6 +340,17 @@ fn instances() {
         let hits = check_streams(&top(kind), &rays, &what);
         assert!(hits >= 40, "{what}: only {hits} hits");
     }
+    // More instances than packets and streams list (each ray by itself).
+    let many: Vec<Instance> = (0..PACKET_INSTANCES as u32 + 6)
+        .map(|k| Instance {
+            object: k % 2,
+            transform: place(k % 7),
+        })
+        .collect();
+    let crowd = Instances::build(objects.clone(), &many, AccelKind::Bvh8).unwrap();
+    check(&crowd, &rays, "70 instances");
+    let hits = check_streams(&crowd, &rays, "70 instances");
+    assert!(hits >= 40, "70 instances: only {hits} hits");
 }
 
 /// Hard cases: axis-parallel packets, rays starting inside boxes, rays
