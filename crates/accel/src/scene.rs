@@ -1174,6 +1174,10 @@ impl<P: Primitives> Scene<P> {
     /// interleaved without walking any group to find out.
     #[cfg(target_arch = "x86_64")]
     fn scattered(&self, mut origins: impl Iterator<Item = Vec3>, fraction: f32) -> bool {
+        if fraction == f32::INFINITY {
+            // No distance is that far (occlusion streams ask so).
+            return false;
+        }
         let diagonal = self.bounds.diagonal();
         let Some(mut last) = origins.next() else {
             return false;
