@@ -1184,7 +1184,18 @@ impl<const W: usize> WideBvh<W> {
                         }
                         None => u32::MAX,
                     };
-                    // Entered children, farthest first.
+                    // Each axis's near and far row, chosen once a node (the
+                    // octant is the packet's) rather than for each child.
+                    let neg = p.neg();
+                    let rows = |a: usize| {
+                        if neg[a] {
+                            (&n.max[a], &n.min[a])
+                        } else {
+                            (&n.min[a], &n.max[a])
+                        }
+                    };
+                    let (r0, r1, r2) = (rows(0), rows(1), rows(2));
+                    // Entered children, farthest first (ordered).
                     let mut hits = [(0.0f32, PacketEntry::NONE); W];
                     let mut h = 0;
                     // Empty slots have empty boxes, which no lane enters.
@@ -1192,25 +1203,34 @@ impl<const W: usize> WideBvh<W> {
                     while kept != 0 {
                         let c = kept.trailing_zeros() as usize;
                         kept &= kept - 1;
-                        let min = [n.min[0][c], n.min[1][c], n.min[2][c]];
-                        let max = [n.max[0][c], n.max[1][c], n.max[2][c]];
-                        let (near, far) = packet::planes(p, min, max);
+                        let near = [r0.0[c], r1.0[c], r2.0[c]];
+                        let far = [r0.1[c], r1.1[c], r2.1[c]];
                         let (m, entry) = test(p, near, far, &bound);
                         let m = m & lanes;
                         if m == 0 {
                             continue;
                         }
-                        // Ordered by the first lane that enters: cheaper than
-                        // the least entry, and as good for a coherent packet.
-                        let key = entry[m.trailing_zeros() as usize];
                         let item = PacketEntry {
                             child: n.child[c],
                             count: n.count[c],
                             lanes: m,
                             entry,
                         };
+                        if !ORDERED {
+                            // Straight onto the stack, in slot order: the
+                            // last pushed is visited next, as the ordered
+                            // walk visits its last item (no array a node to
+                            // clear and copy from). Ordered, items pushed
+                            // this way and then sorted on the stack ran
+                            // 0.95-0.98x as fast.
+                            stack.push(item);
+                            continue;
+                        }
+                        // Ordered by the first lane that enters: cheaper than
+                        // the least entry, and as good for a coherent packet.
+                        let key = entry[m.trailing_zeros() as usize];
                         let mut j = h;
-                        while ORDERED && j > 0 && hits[j - 1].0 < key {
+                        while j > 0 && hits[j - 1].0 < key {
                             hits[j] = hits[j - 1];
                             j -= 1;
                         }
