@@ -440,6 +440,18 @@ pub(crate) fn frustum<const W: usize>(
     (0..W).fold(0, |m, c| m | (u32::from(e[c] <= x[c]) << c))
 }
 
+/// The greatest of the lanes of `v` whose bits are set in `lanes`
+/// (`-inf` for none): the bound a packet's interval test ([`frustum`])
+/// takes for its active lanes. By selects, not a filtered loop (a branch
+/// a lane: 4% of the walk's instructions).
+#[inline(always)]
+pub(crate) fn masked_max(v: &[f32; LANES], lanes: u32) -> f32 {
+    (0..LANES).fold(f32::NEG_INFINITY, |b, i| {
+        let on = lanes >> i & 1 != 0;
+        max_ns(if on { v[i] } else { f32::NEG_INFINITY }, b)
+    })
+}
+
 /// A bit per lane where `a <= b` (none for NaN), in AVX where the CPU
 /// has it.
 #[inline(always)]

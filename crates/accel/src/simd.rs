@@ -885,6 +885,60 @@ pub(crate) fn frustum8<const W: usize>(
     unsafe { frustum8_avx(f, neg, n.min_rows(), n.max_rows(), bound) }
 }
 
+/// [`frustum8`] inside an AVX2 walk: the `Avx2` proof stands for the CPU
+/// check (two checks a node visit, with a branch each, before).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) fn frustum8_in<const W: usize>(
+    _avx: Avx2,
+    n: &WideNode<W>,
+    f: &crate::packet::Frustum,
+    neg: [bool; 3],
+    bound: f32,
+) -> u32 {
+    // Decided at compile time for each width.
+    assert!(W == 8, "frustum8_in takes 8-wide nodes");
+    debug_assert!(cpu_has_avx2());
+    // SAFETY: every row holds W == 8 floats (asserted), and the CPU has
+    // AVX2 (the proof).
+    unsafe { frustum8_avx(f, neg, n.min_rows(), n.max_rows(), bound) }
+}
+
+/// The greatest of the lanes of `v` whose bits are set in `lanes`
+/// (`-inf` for none), in AVX: a blend and a reduction instead of a
+/// branch and a dependent `max` a lane. For lanes that are not NaN, the
+/// value of [`crate::packet::masked_max`]'s fold (the greatest is the
+/// greatest in any order; zeros of either sign compare equal).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) fn masked_max8(_avx: Avx2, v: &[f32; 8], lanes: u32) -> f32 {
+    debug_assert!(cpu_has_avx2());
+    // SAFETY: `v` holds 8 floats, and the CPU has AVX2 (the proof).
+    unsafe { masked_max8_avx(v, lanes) }
+}
+
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn masked_max8_avx(v: &[f32; 8], lanes: u32) -> f32 {
+    use std::arch::x86_64::*;
+    let bits = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+    let on = _mm256_cmpeq_epi32(
+        _mm256_and_si256(_mm256_set1_epi32(lanes as i32), bits),
+        bits,
+    );
+    let x = _mm256_blendv_ps(
+        _mm256_set1_ps(f32::NEG_INFINITY),
+        _mm256_loadu_ps(v.as_ptr()),
+        _mm256_castsi256_ps(on),
+    );
+    let m = _mm_max_ps(_mm256_castps256_ps128(x), _mm256_extractf128_ps::<1>(x));
+    let m = _mm_max_ps(m, _mm_movehl_ps(m, m));
+    _mm_cvtss_f32(_mm_max_ss(m, _mm_movehdup_ps(m)))
+}
+
 /// # Safety
 /// The CPU must have AVX.
 #[cfg(target_arch = "x86_64")]
@@ -1525,6 +1579,28 @@ mod tests {
                 with_avx2(|| slab8(n, r, bound, t))
             };
             node_kernel_matches(avx, &corners, used, (o, d, tmin, bound))?;
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(4000))]
+        /// The AVX reduction gives the fold's greatest active lane, for
+        /// every mask (none: `-inf`), on bounds that are not NaN (a packet
+        /// walk's never are: its rays are valid, its hits' `t` ordered).
+        #[test]
+        fn avx_masked_max_matches_fallback(
+            v in proptest::array::uniform8(hard_coord().prop_filter("not NaN", |x| !x.is_nan())),
+            lanes in 0u32..256,
+        ) {
+            let Some(avx) = Avx2::detect() else { return Ok(()) };
+            let want = crate::packet::masked_max(&v, lanes);
+            let got = avx.run(|| masked_max8(avx, &v, lanes));
+            // Zeros of either sign compare equal, as the walk's tests
+            // compare them.
+            prop_assert!(got == want, "{v:?} {lanes:#b}: {got} against {want}");
+            if lanes == 0 {
+                prop_assert_eq!(got, f32::NEG_INFINITY);
+            }
         }
     }
 
