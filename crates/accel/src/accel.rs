@@ -411,6 +411,19 @@ impl Accel {
         true
     }
 
+    /// The primitives [`Self::traverse`] reaches for `ray` with a leaf
+    /// that never lowers its bound, as bits, where a wide BVH answers that
+    /// from its root alone ([`WideBvh::root_leaves`]); `None` for other
+    /// structures and deeper walks.
+    #[inline]
+    pub(crate) fn root_leaves(&self, ray: &Ray) -> Option<u64> {
+        match self {
+            Self::Bvh4(b) => b.root_leaves(ray),
+            Self::Bvh8(b) => b.root_leaves(ray),
+            _ => None,
+        }
+    }
+
     /// Calls `leaf` for candidate primitives front to back, as far as the
     /// bound it returns lets the traversal go.
     #[inline]
@@ -451,6 +464,66 @@ fn binned_tree(
 mod tests {
     use super::*;
     use raymesh_geometry::Vec3;
+
+    /// Where a wide BVH answers from its root, it names the primitives the
+    /// walk reaches, on trees of 1 to 70 boxes (one level deep or more;
+    /// ids past 63), for rays from outside and inside, axis-parallel,
+    /// grazing, with `tmax` short of the boxes, and invalid.
+    #[test]
+    fn root_leaves_are_what_the_walk_reaches() {
+        let mut next = crate::test_util::xorshift(0x1357_9bdf);
+        let (mut answered, mut deeper) = (0, 0);
+        for n in [1usize, 2, 3, 5, 8, 9, 16, 40, 70] {
+            let boxes: Vec<Aabb> = (0..n)
+                .map(|i| {
+                    let p = Vec3::new(next(), next(), next()) * 6.0 - 3.0;
+                    // Flat boxes too, and one spanning the rest (a floor).
+                    let e = if i == 0 {
+                        Vec3::new(12.0, 0.0, 12.0)
+                    } else {
+                        Vec3::new(next(), next(), next())
+                    };
+                    Aabb::new(p - e * 0.5, p + e * 0.5)
+                })
+                .collect();
+            for kind in [AccelKind::Bvh8, AccelKind::Bvh4] {
+                let top = Accel::build(kind, &boxes, &BuildConfig::default());
+                for i in 0..400 {
+                    let o = Vec3::new(next(), next(), next()) * 16.0 - 8.0;
+                    let d = match i % 5 {
+                        0 => Vec3::Y * (next() - 0.5),
+                        1 => Vec3::new(next() - 0.5, 1e-7, next() - 0.5),
+                        _ => Vec3::new(next(), next(), next()) - 0.5,
+                    };
+                    let tmax = if i % 7 == 0 { next() } else { f32::INFINITY };
+                    let ray = if i % 53 == 0 {
+                        Ray::new(Vec3::NAN, d, 0.0, tmax)
+                    } else {
+                        Ray::new(o, d, 0.0, tmax)
+                    };
+                    let mut walked = 0u64;
+                    let mut all = Vec::new();
+                    top.traverse(&ray, &mut crate::NoStats, &mut |k| {
+                        walked |= 1u64.checked_shl(k).unwrap_or(0);
+                        all.push(k);
+                        ray.tmax()
+                    });
+                    match top.root_leaves(&ray) {
+                        Some(m) => {
+                            answered += 1;
+                            assert_eq!(m, walked, "{kind} over {n}: {ray:?}");
+                            assert!(all.iter().all(|&k| k < 64));
+                        }
+                        None => deeper += 1,
+                    }
+                }
+            }
+        }
+        assert!(
+            answered > 2000 && deeper > 100,
+            "{answered} answered, {deeper} deeper"
+        );
+    }
 
     /// Gathering beside the collapse or after it gives the same structure,
     /// bit for bit, and hands `gather` the same leaf order, for every

@@ -331,6 +331,8 @@ fn instances() {
     // Top structures whose leaves hold one instance each, or several.
     for kind in [
         AccelKind::BvhBinned,
+        AccelKind::Bvh8,
+        AccelKind::Bvh4,
         AccelKind::Grid,
         AccelKind::KdTree,
         AccelKind::Brute,

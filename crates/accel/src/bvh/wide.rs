@@ -310,6 +310,44 @@ impl<const W: usize> WideBvh<W> {
         }
     }
 
+    /// The primitives a ray reaches, as bits, where the tree is one level
+    /// deep for it: what [`Self::traverse`] calls its leaf for, with a
+    /// leaf that never lowers the ray's bound, when every child of the
+    /// root that `ray` enters is a leaf and every primitive there has an
+    /// id below 64; `None` otherwise (the walk must go deeper). The root's
+    /// test is the walk's own (`Self::slab`, the same bound), without the
+    /// walk's set-up: a scene of a few instances asks this of every ray of
+    /// a stream (`Instances`' stream masks).
+    pub(crate) fn root_leaves(&self, ray: &Ray) -> Option<u64> {
+        let Some(root) = self.nodes.first() else {
+            return Some(0);
+        };
+        if !ray.is_valid() {
+            return Some(0);
+        }
+        let (mut entered, _) = root.slab(&BoxRay::new(ray), ray.tmax());
+        let mut bits = 0u64;
+        while entered != 0 {
+            let c = entered.trailing_zeros() as usize % W;
+            entered &= entered - 1;
+            if root.count[c] == 0 {
+                return None;
+            }
+            for slot in root.child[c]..root.child[c] + root.count[c] {
+                let id = match self.prim_ids.get(slot as usize) {
+                    Some(&id) => id,
+                    None if self.prim_ids.is_empty() => slot,
+                    None => return None,
+                };
+                if id >= 64 {
+                    return None;
+                }
+                bits |= 1 << id;
+            }
+        }
+        Some(bits)
+    }
+
     /// Front-to-back traversal calling `leaf` per primitive (see
     /// [`Self::traverse_blocks`]).
     #[inline]
