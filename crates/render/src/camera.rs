@@ -32,7 +32,11 @@ impl Camera {
     }
 
     /// The ray through image point `(sx, sy)` in `[0, 1]²` (y down).
+    /// Inlined into the renderer's loop, where each ray is made in place
+    /// and its divisions overlap the next ray's (called, it returned each
+    /// ray through memory: 10% of a render's samples).
     #[must_use]
+    #[inline]
     pub fn ray(&self, sx: f32, sy: f32) -> Ray {
         let x = (2.0 * sx - 1.0) * self.tan_half * self.aspect;
         let y = (1.0 - 2.0 * sy) * self.tan_half;
