@@ -235,7 +235,7 @@ impl Engine for Raymesh {
         if run.stream && any {
             // Occlusion, as Embree's `rtcOccluded1M` answers it.
             return run.run_chunks(rays, |rays, out| {
-                let rays = stream_rays(rays);
+                let rays: Vec<_> = rays.iter().map(raymesh::workload::row_ray).collect();
                 let mut occluded = vec![false; rays.len()];
                 self.scene.occluded_stream(&rays, &mut occluded);
                 for (o, hit) in out.iter_mut().zip(occluded) {
@@ -245,7 +245,9 @@ impl Engine for Raymesh {
         }
         if run.stream {
             return run.run_chunks(rays, |rays, out| {
-                let rays = stream_rays(rays);
+                // Made in place (`row_ray`, inlined): the one-ray closures keep
+                // `unpack_ray`'s call, 1-3% faster there than inlined.
+                let rays: Vec<_> = rays.iter().map(raymesh::workload::row_ray).collect();
                 let mut hits = vec![None; rays.len()];
                 self.scene.stream_bare(&rays, false, &mut hits);
                 for (o, h) in out.iter_mut().zip(hits) {
@@ -402,25 +404,6 @@ fn moller_trumbore(o: Vec3, d: Vec3, p: &[nalgebra::Point3<f32>; 3], tmin: f32, 
     } else {
         f32::INFINITY
     }
-}
-
-/// A stream's rays made from packed rows, each where the stream's `Vec`
-/// stores it: `Ray::new` inlined into the loop. Through
-/// `raymesh::workload::unpack_ray`, a call that returns the ray through
-/// memory, collecting them took 10% of a `--stream` run's samples and
-/// primary any-hit streams on the pig read 0.85x as fast; the one-ray
-/// closures keep the call, which read 1-3% faster there than inlined.
-fn stream_rays(rays: &[[f32; 8]]) -> Vec<raymesh_geometry::Ray> {
-    rays.iter()
-        .map(|r| {
-            raymesh_geometry::Ray::new(
-                Vec3::new(r[0], r[1], r[2]),
-                Vec3::new(r[4], r[5], r[6]),
-                r[3],
-                r[7],
-            )
-        })
-        .collect()
 }
 
 /// Eight rays of BENCH.md's layout (origin, `tmin`, direction, `tmax`)
