@@ -91,9 +91,14 @@ pub fn render(world: &World, opts: Options, progress: &(dyn Fn(u64, u64) + Sync)
             let tw = x1 - x0;
             let mut out = vec![Vec3::ZERO; (tw * (y1 - y0)) as usize];
             let mut rays = 0u64;
-            let camera = |x: u32, y: u32, k: u32| {
+            // Sample `k` of pixel `(x, y)` as a point of the image.
+            let point = |x: u32, y: u32, k: u32| {
                 let (sx, sy) = sample(x, y, k, spp);
-                world.camera.ray(sx / w as f32, sy / h as f32)
+                (sx / w as f32, sy / h as f32)
+            };
+            let camera = |x: u32, y: u32, k: u32| {
+                let (sx, sy) = point(x, y, k);
+                world.camera.ray(sx, sy)
             };
             match opts.mode {
                 Mode::Shade => {
@@ -101,8 +106,12 @@ pub fn render(world: &World, opts: Options, progress: &(dyn Fn(u64, u64) + Sync)
                     // pixel's samples in order (so runs of eight make
                     // packets, and each pixel sums its samples as one by
                     // one would), traced in streams of STREAM.
+                    // The rays made eight at a time (`Camera::rays8`, the
+                    // same rays), the last few one by one.
                     let mut pixel = Vec::with_capacity((tw * (y1 - y0) * spp) as usize);
                     let mut stream = Vec::with_capacity(pixel.capacity());
+                    let (mut sx, mut sy) = ([0.0f32; 8], [0.0f32; 8]);
+                    let mut held = 0;
                     for by in (y0..y1).step_by(2) {
                         for bx in (x0..x1).step_by(4) {
                             for y in by..(by + 2).min(y1) {
@@ -110,11 +119,19 @@ pub fn render(world: &World, opts: Options, progress: &(dyn Fn(u64, u64) + Sync)
                                     let p = ((y - y0) * tw + (x - x0)) as usize;
                                     for k in 0..spp {
                                         pixel.push(p);
-                                        stream.push(camera(x, y, k));
+                                        (sx[held], sy[held]) = point(x, y, k);
+                                        held += 1;
+                                        if held == 8 {
+                                            stream.extend(world.camera.rays8(&sx, &sy));
+                                            held = 0;
+                                        }
                                     }
                                 }
                             }
                         }
+                    }
+                    for i in 0..held {
+                        stream.push(world.camera.ray(sx[i], sy[i]));
                     }
                     for (ps, rs) in pixel.chunks(STREAM).zip(stream.chunks(STREAM)) {
                         for (p, c) in ps.iter().zip(world.trace_stream(rs, 0, &mut rays)) {
