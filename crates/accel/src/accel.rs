@@ -411,16 +411,19 @@ impl Accel {
         true
     }
 
-    /// The primitives [`Self::traverse`] reaches for `ray` with a leaf
-    /// that never lowers its bound, as bits, where a wide BVH answers that
-    /// from its root alone ([`WideBvh::root_leaves`]); `None` for other
-    /// structures and deeper walks.
-    #[inline]
-    pub(crate) fn root_leaves(&self, ray: &Ray) -> Option<u64> {
+    /// For each ray of `rays`, the primitives [`Self::traverse`] reaches
+    /// with a leaf that never lowers its bound, as bits: from the root
+    /// alone where a wide BVH answers so ([`WideBvh::root_leaves_each`]),
+    /// else `fallback(ray)` (other structures and deeper walks).
+    pub(crate) fn root_leaves_each(
+        &self,
+        rays: &[Ray],
+        fallback: impl Fn(&Ray) -> u64,
+    ) -> Vec<u64> {
         match self {
-            Self::Bvh4(b) => b.root_leaves(ray),
-            Self::Bvh8(b) => b.root_leaves(ray),
-            _ => None,
+            Self::Bvh4(b) => b.root_leaves_each(rays, fallback),
+            Self::Bvh8(b) => b.root_leaves_each(rays, fallback),
+            _ => rays.iter().map(fallback).collect(),
         }
     }
 
@@ -466,17 +469,27 @@ mod tests {
     use raymesh_geometry::Vec3;
 
     /// Where a wide BVH answers from its root, it names the primitives the
-    /// walk reaches, on trees of 1 to 70 boxes (one level deep or more;
-    /// ids past 63), for rays from outside and inside, axis-parallel,
+    /// walk reaches (and the fallback, the walk here, answers the rest),
+    /// on trees of 1 to 70 boxes (one level deep or more; ids past 63),
+    /// for rays from outside and inside, axis-parallel,
     /// grazing, with `tmax` short of the boxes, and invalid.
     #[test]
     fn root_leaves_are_what_the_walk_reaches() {
         let mut next = crate::test_util::xorshift(0x1357_9bdf);
         let (mut answered, mut deeper) = (0, 0);
-        for n in [1usize, 2, 3, 5, 8, 9, 16, 40, 70] {
+        for n in [1usize, 2, 3, 5, 8, 9, 16, 40, 66, 70] {
             let boxes: Vec<Aabb> = (0..n)
                 .map(|i| {
-                    let p = Vec3::new(next(), next(), next()) * 6.0 - 3.0;
+                    let mut p = Vec3::new(next(), next(), next()) * 6.0 - 3.0;
+                    if n == 66 {
+                        // Ids past 63 apart from the rest, so that a leaf
+                        // of the root may hold them.
+                        p.x = if i >= 64 {
+                            p.x * 0.1 - 3.0
+                        } else {
+                            p.x * 0.5 + 2.0
+                        };
+                    }
                     // Flat boxes too, and one spanning the rest (a floor).
                     let e = if i == 0 {
                         Vec3::new(12.0, 0.0, 12.0)
@@ -486,8 +499,21 @@ mod tests {
                     Aabb::new(p - e * 0.5, p + e * 0.5)
                 })
                 .collect();
-            for kind in [AccelKind::Bvh8, AccelKind::Bvh4] {
-                let top = Accel::build(kind, &boxes, &BuildConfig::default());
+            // Large leaves too, so that more roots have only leaves.
+            let configs = [
+                BuildConfig::default(),
+                BuildConfig {
+                    max_leaf: Some(80),
+                    traversal_cost: 1000.0,
+                    ..BuildConfig::default()
+                },
+            ];
+            for (kind, config) in [AccelKind::Bvh8, AccelKind::Bvh4]
+                .into_iter()
+                .flat_map(|k| configs.iter().map(move |c| (k, c)))
+            {
+                let top = Accel::build(kind, &boxes, config);
+                let mut rays = Vec::new();
                 for i in 0..400 {
                     let o = Vec3::new(next(), next(), next()) * 16.0 - 8.0;
                     let d = match i % 5 {
@@ -501,22 +527,28 @@ mod tests {
                     } else {
                         Ray::new(o, d, 0.0, tmax)
                     };
+                    rays.push(ray);
+                }
+                let walk = |ray: &Ray| {
                     let mut walked = 0u64;
-                    let mut all = Vec::new();
-                    top.traverse(&ray, &mut crate::NoStats, &mut |k| {
-                        walked |= 1u64.checked_shl(k).unwrap_or(0);
-                        all.push(k);
+                    top.traverse(ray, &mut crate::NoStats, &mut |k| {
+                        // An id past 63 sets every bit: no answer from the
+                        // root may leave it out.
+                        walked |= 1u64.checked_shl(k).unwrap_or(u64::MAX);
                         ray.tmax()
                     });
-                    match top.root_leaves(&ray) {
-                        Some(m) => {
-                            answered += 1;
-                            assert_eq!(m, walked, "{kind} over {n}: {ray:?}");
-                            assert!(all.iter().all(|&k| k < 64));
-                        }
-                        None => deeper += 1,
-                    }
+                    walked
+                };
+                let fell_back = std::cell::Cell::new(0);
+                let masks = top.root_leaves_each(&rays, |r| {
+                    fell_back.set(fell_back.get() + 1);
+                    walk(r)
+                });
+                for (ray, m) in rays.iter().zip(masks) {
+                    assert_eq!(m, walk(ray), "{kind} over {n}: {ray:?}");
                 }
+                answered += rays.len() - fell_back.get();
+                deeper += fell_back.get();
             }
         }
         assert!(

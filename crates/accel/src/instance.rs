@@ -169,14 +169,12 @@ impl<S: Surface> Instances<S> {
     /// scene of at most [`PACKET_INSTANCES`] instances).
     ///
     /// A wide BVH over the boxes answers from its root where the ray's
-    /// walk would go no deeper ([`Accel::root_leaves`]: a mesh and its
-    /// floor, the renderer's scene of a mesh file, are two leaves), without
-    /// the one-ray walk's set-up: that walk a ray was 5% of a render of
-    /// bunny00.
+    /// walk would go no deeper ([`Accel::root_leaves_each`]: a mesh and
+    /// its floor, the renderer's scene of a mesh file, are two leaves),
+    /// without the one-ray walk's set-up: that walk a ray was 5% of a
+    /// render of bunny00.
     fn stream_masks(&self, rays: &[Ray]) -> Vec<u64> {
-        rays.iter()
-            .map(|r| self.top.root_leaves(r).unwrap_or_else(|| self.walk_mask(r)))
-            .collect()
+        self.top.root_leaves_each(rays, |r| self.walk_mask(r))
     }
 
     /// A bit per instance whose box `ray` enters, by the top structure's
