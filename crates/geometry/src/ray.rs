@@ -242,11 +242,11 @@ impl Rays8 {
     }
 
     /// The eight rays, each [`Self::ray`]'s bit for bit: by rows
-    /// ([`Self::lanes`]: three SIMD divisions a row for the eight) where
-    /// the rays are valid and share their octant and axis order, as a
-    /// camera's neighbouring rays do, else one by one. A stream's maker
-    /// (the renderer's camera) makes its rays so, at a fraction of the
-    /// divisions of eight [`Ray::new`]s.
+    /// ([`Self::lanes`]: six rows of quotients, a SIMD division or two
+    /// each for the eight) where the rays are valid and share their octant
+    /// and axis order, as a camera's neighbouring rays do, else one by
+    /// one. A stream's maker (the renderer's camera) makes its rays so,
+    /// with a fraction of the divisions of eight [`Ray::new`]s.
     #[inline]
     #[must_use]
     pub fn rays(&self) -> [Ray; 8] {
@@ -254,7 +254,7 @@ impl Rays8 {
             return std::array::from_fn(|i| self.ray(i));
         };
         let row = |v: &[[f32; 8]; 3], i: usize| Vec3::new(v[0][i], v[1][i], v[2][i]);
-        // Lanes::k holds axes below 3.
+        // `RayLanes8::k` holds axes, each below 3.
         let k = l.k.map(|a| a as u8);
         std::array::from_fn(|i| Ray {
             origin: row(&self.origin, i),

@@ -190,8 +190,8 @@ impl<const W: usize> WideNode<W> {
     }
 }
 
-/// [`WideBvh::root_leaves_each`]'s loop over the rays: `test(ray, tmax)`
-/// is the root's slab test (generic, so that an AVX2 kernel inlines into
+/// [`WideBvh::root_leaves_each`]'s loop over the rays: `test(box_ray,
+/// tmax)` is the root's slab test (generic, so that an AVX2 kernel inlines into
 /// the loop; through `&dyn Fn` it stayed a call), `bits` each child's
 /// primitives, `deeper` the children that make a ray take `fallback`.
 #[inline(always)]
