@@ -413,7 +413,7 @@ impl Accel {
 
     /// For each ray of `rays`, the primitives [`Self::traverse`] reaches
     /// with a leaf that never lowers its bound, as bits: from the root
-    /// alone where a wide BVH answers so ([`WideBvh::root_leaves_each`]),
+    /// alone where a wide BVH answers so ([`crate::bvh::WideBvh::root_leaves_each`]),
     /// else `fallback(ray)` (other structures and deeper walks).
     pub(crate) fn root_leaves_each(
         &self,

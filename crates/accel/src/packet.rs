@@ -28,7 +28,7 @@ use std::cell::OnceCell;
 /// Rays in a packet: one per SIMD lane of AVX.
 pub const LANES: usize = 8;
 
-/// What a packet walk does at a leaf ([`crate::WideBvh`]'s and
+/// What a packet walk does at a leaf ([`crate::bvh::WideBvh`]'s and
 /// [`crate::Bvh`]'s `traverse_packet`): tests primitives
 /// `first..first + count` for the lanes in `lanes`, lowering their bounds
 /// in `tmax` (to `-inf` for a lane that is done). `avx` is the walk's
