@@ -15,7 +15,7 @@ mod embree_peer;
 mod engines;
 mod thread_list;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, ensure, Context, Result};
 use clap::Parser;
 use engines::{Answer, Engine, Runner, RUST_PEERS};
 use raymesh::npy;
@@ -108,6 +108,32 @@ struct Args {
     /// memory at once.
     #[arg(long)]
     interleave: bool,
+    /// Queries to trace, comma-separated: `closest`, `any-hit` (both by
+    /// default). One alone halves a run, and leaves a profiler or a
+    /// counter run over the whole process with one query's passes.
+    #[arg(long, default_value = "closest,any-hit", value_parser = parse_queries)]
+    queries: Queries,
+}
+
+/// `--queries`' list, as the `any` flags the engines trace with
+/// (`false`: closest hits), in the order given, each once.
+#[derive(Clone, Debug)]
+struct Queries(Vec<bool>);
+
+/// Reads `--queries`: `closest` and `any-hit`, comma-separated, at
+/// least one, none twice.
+fn parse_queries(text: &str) -> Result<Queries> {
+    let mut any = Vec::new();
+    for q in text.split(',').map(str::trim) {
+        let a = match q {
+            "closest" => false,
+            "any-hit" => true,
+            _ => bail!("unknown query '{q}': expected closest or any-hit"),
+        };
+        ensure!(!any.contains(&a), "query '{q}' given twice");
+        any.push(a);
+    }
+    Ok(Queries(any))
 }
 
 /// Milliseconds of an engine's builds after which `--build-repeat`'s
@@ -382,7 +408,7 @@ fn interleaved(
     // Per engine, per (workload, query): Mrays/s and agreement.
     let mut cases: Vec<Vec<(f64, f64)>> = vec![Vec::new(); names.len()];
     for (_, rays) in workloads {
-        for any in [false, true] {
+        for &any in &args.queries.0 {
             let mut best = vec![f64::INFINITY; names.len()];
             let mut answers: Vec<Vec<Answer>> = vec![Vec::new(); names.len()];
             for _ in 0..args.repeat.max(1) {
@@ -403,7 +429,7 @@ fn interleaved(
     for (i, &name) in names.iter().enumerate() {
         let mut k = 0;
         for (workload, _) in workloads {
-            for any in [false, true] {
+            for &any in &args.queries.0 {
                 let (mrays, agree) = cases[i][k];
                 traces.push(Trace::new(
                     "", workload, t, any, name, mrays, agree, names[0],
@@ -546,7 +572,7 @@ fn main() -> Result<()> {
                 let mut mine = Vec::new();
                 let mut k = 0;
                 for (workload, rays) in &workloads {
-                    for any in [false, true] {
+                    for &any in &args.queries.0 {
                         let (secs, answers) = engine.trace(rays, any, &run);
                         let agree = if name == reference {
                             reference_answers.push(answers);
@@ -570,7 +596,7 @@ fn main() -> Result<()> {
                 .find(|(n, _)| *n == "raymesh")
                 .map(|(_, r)| r.clone())
                 .expect("raymesh always runs");
-            let per_engine = workloads.len() * 2;
+            let per_engine = workloads.len() * args.queries.0.len();
             let first = traces.len() - per_engine * names.len();
             for (i, tr) in traces[first..].iter_mut().enumerate() {
                 tr.raymesh_ratio = raymesh[i % per_engine] / tr.mrays_per_s;
@@ -765,6 +791,22 @@ mod tests {
         }
         assert_eq!(t.best_ms, ms);
         t.done
+    }
+
+    /// `--queries` keeps the order given; both by default; an unknown
+    /// or repeated query, or none, is refused.
+    #[test]
+    fn queries_are_read_in_order() {
+        assert_eq!(args(&[]).queries.0, [false, true]);
+        assert_eq!(args(&["--queries", "any-hit"]).queries.0, [true]);
+        assert_eq!(
+            args(&["--queries", "any-hit, closest"]).queries.0,
+            [true, false]
+        );
+        for bad in ["closest,closest", "any", "", "closest,"] {
+            let argv = ["raymesh-peers", "mesh.off", "--queries", bad];
+            assert!(Args::try_parse_from(argv).is_err(), "{bad:?} accepted");
+        }
     }
 
     /// By default: at least R builds, then more until 0.25 s of them, at
