@@ -903,7 +903,11 @@ impl<P: Primitives> Scene<P> {
     /// step prefetches what its ray visits next, twelve rays in flight
     /// over trees of 1 MiB of nodes or more: 1.7–2.4 times on random rays
     /// over meshes far larger than the caches (250,000 triangles and up),
-    /// level or slower on smaller ones. Both were slower on coherent rays
+    /// level or slower on smaller ones: on a CPU with AVX2, an 8-wide
+    /// tree of fewer than 256 KiB of nodes (some 30,000 triangles) traces
+    /// such rays one by one instead (random rays 1.03–1.09 times as fast
+    /// on the pig, the dragon, the elephant and small spheres; see
+    /// `bvh::SMALL_TREE_BYTES`). Both were slower on coherent rays
     /// (a camera's, or shadow rays toward one light) over small meshes,
     /// whose branches the one-by-one walk predicts well: over a wide BVH
     /// each run of eight rays that makes a packet ([`Packet8`]) walks the
@@ -1312,11 +1316,13 @@ impl<P: Primitives> Scene<P> {
     }
 
     /// [`Self::stream`] with every ray interleaved with the others (over a
-    /// BVH) or traced alone (over the other structures).
+    /// BVH) or traced alone (over the other structures, and for closest
+    /// hits over an 8-wide BVH of fewer than
+    /// [`crate::bvh::SMALL_TREE_BYTES`] of nodes on a CPU with AVX2, where
+    /// that is faster).
     fn stream_each(&self, rays: &[Ray], any_hit: bool) -> Vec<Option<(u32, u32, PrimHit)>> {
-        let Some(wide) = self.wide_blocks() else {
-            return rays
-                .iter()
+        let one_by_one = || {
+            rays.iter()
                 .map(|r| {
                     let found = if any_hit {
                         self.first_hit(r, &mut NoStats)
@@ -1325,8 +1331,17 @@ impl<P: Primitives> Scene<P> {
                     };
                     found.map(|(prim, h)| (prim, self.original_index(prim), h))
                 })
-                .collect();
+                .collect()
         };
+        let Some(wide) = self.wide_blocks() else {
+            return one_by_one();
+        };
+        #[cfg(target_arch = "x86_64")]
+        if let (WideRef::W8(b), Some(_), false) = (wide, Avx2::detect(), any_hit) {
+            if b.node_bytes() < crate::bvh::SMALL_TREE_BYTES {
+                return one_by_one();
+            }
+        }
         let mut found: Vec<Option<(u32, PrimHit)>> = vec![None; rays.len()];
         // Each hit's index as given, looked up when the hit is found: the
         // block's rows, with triangles' indices among them, were just

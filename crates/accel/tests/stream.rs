@@ -243,13 +243,8 @@ fn hard_cases() {
     check_mesh(&TriangleMesh::default(), &rays);
 }
 
-/// A mesh whose wide trees pass 1 MiB of nodes, over which the wide
-/// streams keep more rays in flight than over the small meshes above: a
-/// bumpy 300 × 300 height field (180,000 triangles), traced by incoherent
-/// rays and by rays through its vertices.
-#[test]
-fn large_trees() {
-    let n = 300;
+/// A bumpy `n` × `n` height field (`2 n²` triangles) over the unit square.
+fn height_field(n: usize) -> TriangleMesh {
     let mut u = uniform(99);
     let heights: Vec<f32> = (0..(n + 1) * (n + 1)).map(|_| u() * 0.02).collect();
     let p = |i: usize, j: usize| {
@@ -267,7 +262,35 @@ fn large_trees() {
             tris.push([p(i + 1, j), p(i + 1, j + 1), p(i, j + 1)]);
         }
     }
-    let m = tri_mesh(&tris);
+    tri_mesh(&tris)
+}
+
+/// A mesh whose 8-wide tree has between 256 KiB and 1 MiB of nodes,
+/// over which its closest-hit streams interleave two rays at a time
+/// (over the smaller trees of the meshes above, on a CPU with AVX2, they
+/// trace one ray after another): a 150 × 150 height field (45,000
+/// triangles), traced by incoherent rays.
+#[test]
+fn middle_trees() {
+    let m = height_field(150);
+    let rays = incoherent_rays(&m, 2000, 4);
+    let s = Scene::from_mesh(&m, AccelKind::Bvh8);
+    let bytes = s.stats().nodes * 256;
+    assert!(
+        (1 << 18..1 << 20).contains(&bytes),
+        "{bytes} bytes of nodes"
+    );
+    let hits = check(&s, &rays, "bvh8 middle");
+    assert!(hits > rays.len() / 10, "only {hits} hits");
+}
+
+/// A mesh whose wide trees pass 1 MiB of nodes, over which the wide
+/// streams keep more rays in flight than over the small meshes above: a
+/// bumpy 300 × 300 height field (180,000 triangles), traced by incoherent
+/// rays and by rays through its vertices.
+#[test]
+fn large_trees() {
+    let m = height_field(300);
     let rays = incoherent_rays(&m, 2000, 5);
     for (kind, node_bytes) in [(AccelKind::Bvh8, 256), (AccelKind::Bvh4, 128)] {
         let s = Scene::from_mesh(&m, kind);

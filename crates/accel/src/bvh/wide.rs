@@ -666,6 +666,25 @@ const STREAM_LANES: [usize; 2] = [2, 12];
 /// 1.07 / 1.03, a 250K one (2 MB) 1.20 / 1.21 (bunny00, 0.66 MB: above).
 const LARGE_TREE_BYTES: usize = 1 << 20;
 
+/// Bytes of nodes below which an 8-wide tree's closest-hit streams trace
+/// the rays they would interleave one after another instead, on a CPU
+/// with AVX2 ([`WideBvh::node_bytes`]; `Scene::stream_each`): the tree
+/// then sits well within the core's L2 with room for leaves, its nodes
+/// come from there without the waits interleaving hides, and the one-ray
+/// walk, compiled in one AVX2 region with the leaf test inlined, takes
+/// less work a ray. `raymesh-ab --stream --workload random --size 512
+/// --query closest` (262K rays, pinned, against f5aaeec): the pig (143
+/// KiB of nodes) 1.08, the dragon (178 KiB) 1.09, the elephant (38 KiB)
+/// 1.07, 12K-, 20K- and 30K-triangle spheres (94, 157, 236 KiB) 1.04,
+/// 1.06, 1.03; past it one by one loses: polygon_mesh (295 KiB) 1.00, a
+/// 45K-triangle sphere (357 KiB) 1.00, 60K (472 KiB) 0.97, bunny00 (680
+/// KiB) 0.98, 100K (777 KiB) 0.93. Any-hit streams stay interleaved: one
+/// by one, the meshes gained 1–4% but the spheres lost 1–3%. (`bvh4`'s
+/// one-ray walk, without the AVX2 region, lost 2–3% one by one on the
+/// pig and the dragon.)
+#[cfg(target_arch = "x86_64")]
+pub(crate) const SMALL_TREE_BYTES: usize = 1 << 18;
+
 /// One ray of a wide stream traversal in flight: its node test, its
 /// interval, the item it visits next, its stack, and its index in the
 /// stream.
@@ -737,6 +756,12 @@ impl<const W: usize> WideBvh<W> {
         });
     }
 
+    /// The bytes of the tree's nodes (which [`STREAM_LANES`] and
+    /// [`SMALL_TREE_BYTES`] weigh).
+    pub(crate) fn node_bytes(&self) -> usize {
+        std::mem::size_of_val(self.nodes.as_slice())
+    }
+
     /// [`Self::stream_with`] with as many rays in flight as the tree's
     /// size calls for ([`STREAM_LANES`]).
     #[inline(always)]
@@ -747,7 +772,7 @@ impl<const W: usize> WideBvh<W> {
         prefetch_leaf: &impl Fn(u32),
         test: impl Fn(&WideNode<W>, &BoxRay, f32, &mut [f32; W]) -> u32,
     ) {
-        if std::mem::size_of_val(self.nodes.as_slice()) >= LARGE_TREE_BYTES {
+        if self.node_bytes() >= LARGE_TREE_BYTES {
             self.stream_with::<ORDERED, { STREAM_LANES[1] }>(rays, leaf, prefetch_leaf, test);
         } else {
             self.stream_with::<ORDERED, { STREAM_LANES[0] }>(rays, leaf, prefetch_leaf, test);
