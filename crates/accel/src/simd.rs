@@ -95,13 +95,14 @@ pub(crate) fn has_avx2() -> bool {
     level() >= AVX2
 }
 
-/// Whether this CPU has AVX2 (detected once, then a cached load).
+/// Whether this CPU has AVX2, and POPCNT, which every CPU with AVX2 has
+/// and the AVX2 builds use (detected once, then a cached load).
 #[inline(always)]
 #[must_use]
 fn cpu_has_avx2() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
-        std::is_x86_feature_detected!("avx2")
+        std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("popcnt")
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
@@ -116,18 +117,20 @@ fn cpu_has_avx2() -> bool {
 #[inline(always)]
 pub(crate) fn with_avx2<R>(f: impl FnOnce() -> R) -> R {
     assert!(cpu_has_avx2(), "with_avx2 called on a CPU without AVX2");
-    // SAFETY: the CPU supports AVX2, checked just above.
+    // SAFETY: the CPU supports AVX2 and POPCNT, checked just above.
     unsafe { run_avx2(f) }
 }
 
+/// Compiled with POPCNT too: a group walk counts the rays of each node
+/// visit, which as shifts and masks took 15 instructions a node.
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
+#[target_feature(enable = "avx2,popcnt")]
 unsafe fn run_avx2<R>(f: impl FnOnce() -> R) -> R {
     f()
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,avx512f,avx512vl")]
+#[target_feature(enable = "avx2,popcnt,avx512f,avx512vl")]
 unsafe fn run_avx512<R>(f: impl FnOnce() -> R) -> R {
     f()
 }
@@ -325,7 +328,9 @@ unsafe fn slab8_avx(node: *const f32, r: &BoxRay, bound: f32, t: *mut f32) -> u3
 /// in AVX2: the node's six rows loaded once, each ray's slab test as
 /// `slab8_avx`'s (the same operations in the same order, so the same
 /// bits), and each ray's hits added to the children's ray masks in one
-/// vector step.
+/// vector step; and a bit for each child some ray entered, taken from
+/// the masks in one vector step too (`bvh::entered_slots` of them, which
+/// as a loop over the eight compiled to 31 instructions a node visit).
 /// Panics unless `W == 8`.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
@@ -334,8 +339,9 @@ pub(crate) fn group_slab8<const W: usize>(
     n: &WideNode<W>,
     g: &crate::bvh::GroupRays,
     mask: u32,
-) -> [u32; W] {
-    group_slab8_with::<false, W>(avx, n, g, mask).0
+) -> ([u32; W], u32) {
+    let (entered, _, slots) = group_slab8_with::<false, W>(avx, n, g, mask);
+    (entered, slots)
 }
 
 /// [`group_slab8`] that also gives, for each child, the least entry
@@ -350,7 +356,7 @@ pub(crate) fn group_slab8_entry<const W: usize>(
     n: &WideNode<W>,
     g: &crate::bvh::GroupRays,
     mask: u32,
-) -> ([u32; W], [f32; W]) {
+) -> ([u32; W], [f32; W], u32) {
     group_slab8_with::<true, W>(avx, n, g, mask)
 }
 
@@ -362,19 +368,22 @@ fn group_slab8_with<const ENTRY: bool, const W: usize>(
     n: &WideNode<W>,
     g: &crate::bvh::GroupRays,
     mask: u32,
-) -> ([u32; W], [f32; W]) {
+) -> ([u32; W], [f32; W], u32) {
     assert!(W == 8);
     let mut out = [0u32; W];
     let mut entry = [0.0f32; W];
     // SAFETY: the node holds W == 8 floats a row (64 in all), `out` 8
     // words and `entry` 8 floats; the CPU has AVX2 (the `Avx2` proof).
-    unsafe {
+    let slots = unsafe {
         let node = std::ptr::from_ref(n).cast();
-        group_slab8_avx::<ENTRY>(node, g, mask, out.as_mut_ptr(), entry.as_mut_ptr());
-    }
-    (out, entry)
+        group_slab8_avx::<ENTRY>(node, g, mask, out.as_mut_ptr(), entry.as_mut_ptr())
+    };
+    (out, entry, slots)
 }
 
+/// Returns a bit for each child that some ray entered (a nonzero mask
+/// in `out`).
+///
 /// # Safety
 /// The CPU must have AVX2; `node` must point to a whole 8-wide node (64
 /// floats), `out` to 8 writable words and `entry` to 8 writable floats
@@ -388,7 +397,7 @@ unsafe fn group_slab8_avx<const ENTRY: bool>(
     mut mask: u32,
     out: *mut u32,
     entry: *mut f32,
-) {
+) -> u32 {
     use std::arch::x86_64::*;
     let mut near = [_mm256_setzero_ps(); 3];
     let mut far = [_mm256_setzero_ps(); 3];
@@ -430,6 +439,8 @@ unsafe fn group_slab8_avx<const ENTRY: bool>(
     if ENTRY {
         _mm256_storeu_ps(entry, least);
     }
+    let none = _mm256_cmpeq_epi32(acc, _mm256_setzero_si256());
+    _mm256_movemask_ps(_mm256_castsi256_ps(none)) as u32 ^ 0xff
 }
 
 /// [`Bvh::traverse_stream`]'s loop compiled with AVX2 and its pair test
@@ -499,15 +510,15 @@ pub(crate) fn intersect_group_avx2(
     shared: &mut (u64, u64),
     leaf: &mut impl crate::bvh::GroupLeaf,
 ) {
-    // SAFETY: the proof exists, so `detect` (its only maker) found AVX2 on
-    // this CPU; the function has no other requirement.
+    // SAFETY: the proof exists, so `detect` (its only maker) found AVX2
+    // and POPCNT on this CPU; the function has no other requirement.
     unsafe { intersect_group_avx2_impl(avx, bvh, g, len, stack, shared, leaf) }
 }
 
 /// # Safety
-/// The CPU must have AVX2.
+/// The CPU must have AVX2 and POPCNT.
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
+#[target_feature(enable = "avx2,popcnt")]
 unsafe fn intersect_group_avx2_impl(
     avx: Avx2,
     bvh: &crate::bvh::Bvh8,
@@ -1077,7 +1088,7 @@ fn active_lanes(hit: u32, count: usize, out: BlockHits) -> (u32, u32, BlockHits)
     (hit & active, 0, out)
 }
 
-/// Proof that the CPU has AVX2 and the kernels are enabled
+/// Proof that the CPU has AVX2 (and POPCNT) and the kernels are enabled
 /// ([`crate::set_simd_enabled`]), checked once where it is made: methods
 /// that take one skip the check. Code compiled for AVX2 (a traversal
 /// under `with_avx2`) inlines the kernels they call.
@@ -1119,7 +1130,7 @@ impl Avx2 {
         #[cfg(target_arch = "x86_64")]
         {
             // SAFETY: `detect`, the proof's only maker, found AVX2,
-            // AVX-512F and AVX-512VL on this CPU (`wide`, asserted).
+            // POPCNT, AVX-512F and AVX-512VL on this CPU (`wide`, asserted).
             unsafe { run_avx512(f) }
         }
         #[cfg(not(target_arch = "x86_64"))]
@@ -1137,7 +1148,7 @@ impl Avx2 {
         #[cfg(target_arch = "x86_64")]
         {
             // SAFETY: the proof exists, so `detect` (its only maker) found
-            // AVX2 on this CPU.
+            // AVX2 and POPCNT on this CPU.
             unsafe { run_avx2(f) }
         }
         #[cfg(not(target_arch = "x86_64"))]
@@ -1639,12 +1650,14 @@ mod tests {
             let mask = mask & (u32::MAX >> (32 - rays.len()));
             let avx = Avx2::detect().expect("AVX2, checked");
             let want = crate::bvh::group_slab_scalar(&node, &g, mask);
-            prop_assert_eq!(group_slab8(avx, &node, &g, mask), want);
+            let want_slots = crate::bvh::entered_slots(&want);
+            prop_assert_eq!(group_slab8(avx, &node, &g, mask), (want, want_slots));
             // With each child's least entry distance, bit for bit.
-            let (entered, least) = group_slab8_entry(avx, &node, &g, mask);
+            let (entered, least, slots) = group_slab8_entry(avx, &node, &g, mask);
             let (want_entered, want_least) = crate::bvh::group_slab_entry_scalar(&node, &g, mask);
             prop_assert_eq!(entered, want_entered);
             prop_assert_eq!(least.map(f32::to_bits), want_least.map(f32::to_bits));
+            prop_assert_eq!(slots, want_slots);
         }
     }
 

@@ -963,10 +963,10 @@ pub(crate) fn group_slab_entry_scalar<const W: usize>(
 /// The slots of a node that some ray of a group entered (`entered`: the
 /// rays that entered each slot), a bit each: the group walks visit them
 /// by their bits (a loop over all the slots with a branch each cost the
-/// closest-hit walk 5–11%).
-#[cfg(target_arch = "x86_64")]
-#[inline(always)]
-fn entered_slots<const W: usize>(entered: &[u32; W]) -> u32 {
+/// closest-hit walk 5–11%). What the AVX2 kernels give beside the masks
+/// (`simd::group_slab8`), which a test checks.
+#[cfg(all(test, target_arch = "x86_64"))]
+pub(crate) fn entered_slots<const W: usize>(entered: &[u32; W]) -> u32 {
     let mut any = 0u32;
     for (k, e) in entered.iter().enumerate() {
         any |= u32::from(*e != 0) << k;
@@ -1007,7 +1007,8 @@ impl<const W: usize> WideBvh<W> {
     /// The rays walk the tree as one, each stack item a node or leaf with
     /// the mask of the rays that entered it: a node's boxes are tested
     /// against each of its rays (`test(node, g, mask)`: per child, the
-    /// rays that enter it, by each ray's one-ray node test), a leaf
+    /// rays that enter it, by each ray's one-ray node test, and a bit for
+    /// each child some ray entered), a leaf
     /// against each of its rays not yet occluded, and a ray leaves the
     /// walk at its first hit. Each ray meets every leaf its one-ray
     /// any-hit walk would until it hits, so whether it hits is the
@@ -1015,9 +1016,10 @@ impl<const W: usize> WideBvh<W> {
     /// them all. Embree walks its occlusion streams' rays so, in groups of
     /// up to 32 of one octant (`bvh_intersector_stream.cpp`).
     ///
-    /// `stack` is scratch space, cleared first (kept by the caller for the
-    /// next group); `shared` counts on the node visits and the rays they
-    /// took, for the caller's choice of walk.
+    /// `stack` is scratch space, whatever it holds overwritten and grown
+    /// where the walk needs more (kept by the caller for the next group);
+    /// `shared` counts on the node visits and the rays they took, for the
+    /// caller's choice of walk.
     #[inline(always)]
     pub(crate) fn occluded_group(
         &self,
@@ -1026,7 +1028,7 @@ impl<const W: usize> WideBvh<W> {
         stack: &mut Vec<(u32, u32, u32)>,
         shared: &mut (u64, u64),
         leaf: &mut impl FnMut(usize, u32, u32) -> bool,
-        test: impl Fn(&WideNode<W>, &GroupRays, u32) -> [u32; W],
+        test: impl Fn(&WideNode<W>, &GroupRays, u32) -> ([u32; W], u32),
     ) -> u32 {
         assert!(len <= GROUP);
         let nodes: &[WideNode<W>] = &self.nodes;
@@ -1036,9 +1038,18 @@ impl<const W: usize> WideBvh<W> {
         // Rays still looking for a hit.
         let start = u32::MAX >> (GROUP - len);
         let mut alive = start;
-        stack.clear();
-        stack.push((0, 0, alive));
-        while let Some((child, count, mask)) = stack.pop() {
+        // The stack as a slice with a top of its own, grown where a node's
+        // pushes would not fit: each push through the `Vec` checked its
+        // capacity and stored its length.
+        if stack.len() < 8 * W {
+            stack.resize(8 * W, (0, 0, 0));
+        }
+        let mut items = stack.as_mut_slice();
+        items[0] = (0, 0, alive);
+        let mut top = 1;
+        while top > 0 {
+            top -= 1;
+            let (child, count, mask) = items[top];
             let mut m = mask & alive;
             if m == 0 {
                 continue;
@@ -1059,14 +1070,19 @@ impl<const W: usize> WideBvh<W> {
             let n = &nodes[child as usize];
             shared.0 += 1;
             shared.1 += u64::from(m.count_ones());
-            let entered = test(n, g, m);
-            let mut any = entered_slots(&entered);
+            let (entered, mut any) = test(n, g, m);
+            if top + W > items.len() {
+                let more = 2 * items.len();
+                stack.resize(more, (0, 0, 0));
+                items = stack.as_mut_slice();
+            }
             // The last slot comes off the stack first, as in the one-ray
             // any-hit walk.
             while any != 0 {
                 let k = any.trailing_zeros() as usize;
                 any &= any - 1;
-                stack.push((n.child[k], n.count[k], entered[k]));
+                items[top] = (n.child[k], n.count[k], entered[k]);
+                top += 1;
             }
         }
         start & !alive
@@ -1081,7 +1097,8 @@ impl<const W: usize> WideBvh<W> {
     /// The rays walk the tree as one, as in [`Self::occluded_group`]; a
     /// node's entered children are visited nearest first by the least
     /// entry distance among their rays (`test(node, g, mask)` gives the
-    /// rays that enter each child and that distance), and a popped item
+    /// rays that enter each child, that distance, and a bit for each
+    /// child some ray entered), and a popped item
     /// drops the rays whose culling bound has since fallen below it (each
     /// such ray's own entry lies beyond its bound, so its one-ray walk
     /// would not enter there either). Every ray meets every leaf that
@@ -1097,7 +1114,7 @@ impl<const W: usize> WideBvh<W> {
         stack: &mut Vec<GroupEntry>,
         shared: &mut (u64, u64),
         leaf: &mut impl GroupLeaf,
-        test: impl Fn(&WideNode<W>, &GroupRays, u32) -> ([u32; W], [f32; W]),
+        test: impl Fn(&WideNode<W>, &GroupRays, u32) -> ([u32; W], [f32; W], u32),
     ) {
         assert!(len <= GROUP);
         let nodes: &[WideNode<W>] = &self.nodes;
@@ -1134,12 +1151,11 @@ impl<const W: usize> WideBvh<W> {
             let n = &nodes[item.child as usize];
             shared.0 += 1;
             shared.1 += u64::from(m.count_ones());
-            let (entered, entry) = test(n, g, m);
+            let (entered, entry, mut any) = test(n, g, m);
             // The entered children, farthest first (the nearest is pushed
             // last and popped next).
             let mut order = [0usize; W];
             let mut h = 0;
-            let mut any = entered_slots(&entered);
             while any != 0 {
                 let k = any.trailing_zeros() as usize;
                 any &= any - 1;
@@ -2195,6 +2211,61 @@ mod tests {
                 // leaves in decreasing level, front to back within one.
                 let expect: Vec<u32> = (0..depth).rev().flat_map(leaves).collect();
                 assert_eq!(seen, expect, "W {W}");
+            }
+        }
+    }
+
+    /// A group's occlusion walk over 40 levels of seven leaves each
+    /// (more items pending than its stack first holds, so that it grows)
+    /// offers every ray every leaf once, and a ray that hits leaves.
+    #[test]
+    #[cfg(target_arch = "x86_64")]
+    fn deep_group_walk_grows_its_stack() {
+        let bvh = leafy_chain(40);
+        let rays: Vec<Ray> = (0..5)
+            .map(|i| {
+                let o = Vec3::new(-2.0, 0.1 * i as f32, 0.2);
+                Ray::new(o, Vec3::new(1.0, 0.001, 0.0), 0.0, f32::INFINITY)
+            })
+            .collect();
+        let g = GroupRays::new(rays.iter());
+        let test = |n: &Node8, g: &GroupRays, m: u32| {
+            let e = group_slab_scalar(n, g, m);
+            (e, entered_slots(&e))
+        };
+        let leaves: Vec<u32> = (0..40)
+            .flat_map(|l| (0..7).map(move |k| 8 * l + k))
+            .collect();
+        for hit_at in [None, Some(77)] {
+            let mut stack = Vec::new();
+            let mut seen = vec![Vec::new(); rays.len()];
+            let found = bvh.occluded_group(
+                &g,
+                rays.len(),
+                &mut stack,
+                &mut (0, 0),
+                &mut |i, first, count| {
+                    assert_eq!(count, 1);
+                    seen[i].push(first);
+                    // Ray 3 hits at leaf 77.
+                    i == 3 && Some(first) == hit_at
+                },
+                test,
+            );
+            assert!(
+                stack.len() > 8 * 8,
+                "the stack did not grow: {}",
+                stack.len()
+            );
+            assert_eq!(found, if hit_at.is_some() { 1 << 3 } else { 0 });
+            for (i, s) in seen.iter_mut().enumerate() {
+                if i == 3 && hit_at.is_some() {
+                    assert_eq!(s.last(), Some(&77), "ray {i} went on after its hit");
+                }
+                if i != 3 || hit_at.is_none() {
+                    s.sort_unstable();
+                    assert_eq!(*s, leaves, "ray {i}");
+                }
             }
         }
     }
