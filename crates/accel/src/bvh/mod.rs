@@ -14,7 +14,7 @@ pub use build::{BvhBuilder, Clip};
 #[cfg(test)]
 pub(crate) use wide::slab_scalar;
 #[cfg(all(test, target_arch = "x86_64"))]
-pub(crate) use wide::{entered_slots, group_slab_entry_scalar, group_slab_scalar};
+pub(crate) use wide::{entered_slots, group_slab_entry_scalar, group_slab_scalar, reaching};
 pub use wide::{BoxRay, Bvh4, Bvh8, Node4, Node8, WideBvh, WideNode};
 #[cfg(target_arch = "x86_64")]
 pub(crate) use wide::{GroupEntry, GroupLeaf, GroupRays, GROUP, SMALL_TREE_BYTES};

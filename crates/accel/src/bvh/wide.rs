@@ -1106,7 +1106,13 @@ impl<const W: usize> WideBvh<W> {
     /// the least index whatever the order, each gets its one-ray closest
     /// hit. Embree walks only occlusion streams in groups; closest hits
     /// share fewer nodes, and the caller measures whether they pay.
+    ///
+    /// `reaching(entry, bounds)` gives the rays whose bound reaches an
+    /// entry distance, a bit each (`entry <= bounds[i]`, as the test-only
+    /// `reaching` finds them).
+    /// `stack` is scratch space, as for [`Self::occluded_group`].
     #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
     pub(crate) fn intersect_group(
         &self,
         g: &mut GroupRays,
@@ -1115,26 +1121,36 @@ impl<const W: usize> WideBvh<W> {
         shared: &mut (u64, u64),
         leaf: &mut impl GroupLeaf,
         test: impl Fn(&WideNode<W>, &GroupRays, u32) -> ([u32; W], [f32; W], u32),
+        reaching: impl Fn(f32, &[f32; GROUP]) -> u32,
     ) {
         assert!(len <= GROUP);
         let nodes: &[WideNode<W>] = &self.nodes;
         if nodes.is_empty() || len == 0 {
             return;
         }
-        stack.clear();
-        stack.push(GroupEntry {
+        // A slice with a top of its own, as in `occluded_group`.
+        let none = GroupEntry {
+            child: 0,
+            count: 0,
+            mask: 0,
+            entry: 0.0,
+        };
+        if stack.len() < 8 * W {
+            stack.resize(8 * W, none);
+        }
+        let mut items = stack.as_mut_slice();
+        items[0] = GroupEntry {
             child: 0,
             count: 0,
             mask: u32::MAX >> (GROUP - len),
             entry: f32::NEG_INFINITY,
-        });
-        while let Some(item) = stack.pop() {
+        };
+        let mut top = 1;
+        while top > 0 {
+            top -= 1;
+            let item = items[top];
             // The rays whose bound still reaches the item.
-            let mut reach = 0u32;
-            for (i, b) in g.bound.iter().enumerate() {
-                reach |= u32::from(item.entry <= *b) << i;
-            }
-            let mut m = item.mask & reach;
+            let mut m = item.mask & reaching(item.entry, &g.bound);
             if m == 0 {
                 continue;
             }
@@ -1167,16 +1183,35 @@ impl<const W: usize> WideBvh<W> {
                 order[j] = k;
                 h += 1;
             }
+            if top + W > items.len() {
+                let more = 2 * items.len();
+                stack.resize(more, none);
+                items = stack.as_mut_slice();
+            }
             for &k in &order[..h] {
-                stack.push(GroupEntry {
+                items[top] = GroupEntry {
                     child: n.child[k],
                     count: n.count[k],
                     mask: entered[k],
                     entry: entry[k],
-                });
+                };
+                top += 1;
             }
         }
     }
+}
+
+/// The rays of a group whose culling bound reaches the entry distance
+/// `entry` (`entry <= bounds[i]`, false where either is NaN), a bit each:
+/// what a group's closest-hit walk drops rays by at each pop, and what
+/// the AVX2 kernel (`simd::reaching8`) must give, which a test checks.
+#[cfg(all(test, target_arch = "x86_64"))]
+pub(crate) fn reaching(entry: f32, bounds: &[f32; GROUP]) -> u32 {
+    let mut reach = 0u32;
+    for (i, b) in bounds.iter().enumerate() {
+        reach |= u32::from(entry <= *b) << i;
+    }
+    reach
 }
 
 /// A node's entered children (`mask`, entry distances `t`): all but the
