@@ -2252,7 +2252,8 @@ mod tests {
 
     /// A group's occlusion walk over 40 levels of seven leaves each
     /// (more items pending than its stack first holds, so that it grows)
-    /// offers every ray every leaf once, and a ray that hits leaves.
+    /// offers every ray every leaf once, and a ray that hits leaves; its
+    /// closest-hit walk offers every ray every leaf once.
     #[test]
     #[cfg(target_arch = "x86_64")]
     fn deep_group_walk_grows_its_stack() {
@@ -2302,6 +2303,40 @@ mod tests {
                     assert_eq!(*s, leaves, "ray {i}");
                 }
             }
+        }
+        // The closest-hit walk too, where no leaf holds a hit.
+        struct Seen(Vec<Vec<u32>>);
+        impl GroupLeaf for Seen {
+            fn visit(&mut self, i: usize, first: u32, count: u32) -> Option<f32> {
+                assert_eq!(count, 1);
+                self.0[i].push(first);
+                None
+            }
+        }
+        let mut g = g;
+        let mut seen = Seen(vec![Vec::new(); rays.len()]);
+        let mut stack = Vec::new();
+        let test = |n: &Node8, g: &GroupRays, m: u32| {
+            let (e, least) = group_slab_entry_scalar(n, g, m);
+            (e, least, entered_slots(&e))
+        };
+        bvh.intersect_group(
+            &mut g,
+            rays.len(),
+            &mut stack,
+            &mut (0, 0),
+            &mut seen,
+            test,
+            reaching,
+        );
+        assert!(
+            stack.len() > 8 * 8,
+            "the stack did not grow: {}",
+            stack.len()
+        );
+        for (i, s) in seen.0.iter_mut().enumerate() {
+            s.sort_unstable();
+            assert_eq!(*s, leaves, "ray {i}, closest");
         }
     }
 
