@@ -1067,13 +1067,13 @@ impl<P: Primitives> Scene<P> {
                 order
             }
         };
-        // The groups, as ranges of `order`: each octant's rays in runs of
-        // at most GROUP, one octant after another.
-        let groups: Vec<(usize, usize)> = (0..8)
+        // The groups, as ranges of `order` and their octant: each octant's
+        // rays in runs of at most GROUP, one octant after another.
+        let groups: Vec<(usize, usize, usize)> = (0..8)
             .flat_map(|o| {
                 (starts[o]..starts[o + 1])
                     .step_by(GROUP)
-                    .map(move |a| (a, (a + GROUP).min(starts[o + 1])))
+                    .map(move |a| (a, (a + GROUP).min(starts[o + 1]), o))
             })
             .collect();
         let mut stack = Vec::with_capacity(256);
@@ -1081,7 +1081,7 @@ impl<P: Primitives> Scene<P> {
         // Node visits and the rays they took, over the groups so far.
         let mut shared = (0u64, 0u64);
         let mut handed = None;
-        for &(a, b) in &groups {
+        for &(a, b, octant) in &groups {
             let few = (shared.1 as f64) < f64::from(policy.min_share) * shared.0 as f64;
             if a >= policy.probe && few {
                 handed = Some(a);
@@ -1089,14 +1089,17 @@ impl<P: Primitives> Scene<P> {
             }
             let group = &order[a..b];
             let ray = |i: usize| &rays[group[i]];
-            let mut g = GroupRays::new(group.iter().map(|&i| &rays[i]));
-            // Each ray's leaf-test constants, made once for the walk, in
-            // place: made by `array::from_fn`, each went through a call
-            // and a copy that waited on the call's narrower stores (half of
-            // this function's time on primary rays).
+            // Each ray's node-test rows and leaf-test constants, made once
+            // for the walk, in place and in one pass over the rays (made
+            // by `array::from_fn`, the constants went through a call and a
+            // copy that waited on the call's narrower stores: half of this
+            // function's time on primary rays).
+            let mut g = GroupRays::of_octant(octant);
             let mut pre = [BlockRay::default(); GROUP];
-            for (p, &i) in pre.iter_mut().zip(group) {
-                *p = self.prims.block_ray(&rays[i]);
+            for ((k, p), &i) in pre.iter_mut().enumerate().zip(group) {
+                let r = &rays[i];
+                g.set(k, r);
+                *p = self.prims.block_ray(r);
             }
             if any_hit {
                 avx_run!(avx, || bvh.occluded_group(
