@@ -1917,8 +1917,15 @@ impl Entry {
 /// Items kept inline; a tree deep enough to need more (each level adds at
 /// most `W - 1`) spills to the heap instead of failing. 32 rather than 64:
 /// the array is set up for every ray, and short rays feel it (shadow
-/// any-hit rays +5–12% on bunny00 and the dragon, alternated runs).
-const INLINE: usize = 32;
+/// any-hit rays +5–12% on bunny00 and the dragon, alternated runs); 16
+/// rather than 32 likewise (`raymesh-ab --accel bvh8` against 19da489,
+/// one ray at a time: shadow rays 1.00–1.03 on the pig, bunny00 and the
+/// dragon, random rays 0.995–1.007; a 2M-triangle sphere's random rays
+/// 1.02–1.03, the teapot in a stadium's 1.01; random streams over a
+/// 600K-triangle sphere 1.02–1.03; packets of primary and shadow rays
+/// 0.995–1.02), the rays that would need more being few even over deep
+/// trees.
+const INLINE: usize = 16;
 
 /// The wide walk's stack: an inline array (cheap to set up per ray) over
 /// a `Vec` that takes the older items when it fills. The node loop only
@@ -2386,7 +2393,7 @@ mod tests {
 
     /// The AVX2 walk, whose stack stays inline, visits the leaves the
     /// spilling walk visits, in the same order, where they fit, and stops
-    /// (returning false) where they would not: 7 items a level, 4 levels
+    /// (returning false) where they would not: 7 items a level, 2 levels
     /// fit inline, 40 do not.
     #[test]
     fn avx_walk_stops_where_the_stack_would_spill() {
@@ -2394,7 +2401,7 @@ mod tests {
             return;
         };
         let ray = Ray::new(Vec3::new(-2.0, 0.1, 0.2), Vec3::X, 0.0, f32::INFINITY);
-        for (depth, fits) in [(1, true), (4, true), (40, false)] {
+        for (depth, fits) in [(1, true), (2, true), (3, false), (40, false)] {
             assert_eq!(7 * depth <= INLINE, fits);
             let bvh = leafy_chain(depth);
             for ordered in [true, false] {
