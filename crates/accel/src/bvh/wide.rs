@@ -1072,10 +1072,7 @@ impl<const W: usize> WideBvh<W> {
         // The stack as a slice with a top of its own, grown where a node's
         // pushes would not fit: each push through the `Vec` checked its
         // capacity and stored its length.
-        if stack.len() < 8 * W {
-            stack.resize(8 * W, (0, 0, 0));
-        }
-        let mut items = stack.as_mut_slice();
+        let mut items = scratch(stack, 8 * W, (0, 0, 0));
         items[0] = (0, 0, alive);
         let mut top = 1;
         while top > 0 {
@@ -1104,8 +1101,7 @@ impl<const W: usize> WideBvh<W> {
             let (entered, mut any) = test(n, g, m);
             if top + W > items.len() {
                 let more = 2 * items.len();
-                stack.resize(more, (0, 0, 0));
-                items = stack.as_mut_slice();
+                items = scratch(stack, more, (0, 0, 0));
             }
             // The last slot comes off the stack first, as in the one-ray
             // any-hit walk.
@@ -1140,8 +1136,8 @@ impl<const W: usize> WideBvh<W> {
     ///
     /// `reaching(entry, bounds)` gives the rays whose bound reaches an
     /// entry distance, a bit each (`entry <= bounds[i]`, as the test-only
-    /// `reaching` finds them).
-    /// `stack` is scratch space, as for [`Self::occluded_group`].
+    /// `reaching` finds them). `stack` is scratch space, as for
+    /// [`Self::occluded_group`].
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn intersect_group(
@@ -1166,10 +1162,7 @@ impl<const W: usize> WideBvh<W> {
             mask: 0,
             entry: 0.0,
         };
-        if stack.len() < 8 * W {
-            stack.resize(8 * W, none);
-        }
-        let mut items = stack.as_mut_slice();
+        let mut items = scratch(stack, 8 * W, none);
         items[0] = GroupEntry {
             child: 0,
             count: 0,
@@ -1216,8 +1209,7 @@ impl<const W: usize> WideBvh<W> {
             }
             if top + W > items.len() {
                 let more = 2 * items.len();
-                stack.resize(more, none);
-                items = stack.as_mut_slice();
+                items = scratch(stack, more, none);
             }
             for &k in &order[..h] {
                 items[top] = GroupEntry {
@@ -1230,6 +1222,18 @@ impl<const W: usize> WideBvh<W> {
             }
         }
     }
+}
+
+/// A group walk's stack `stack` as a slice of at least `least` items (what
+/// it held kept, new items `fill`): the walks push through the slice with
+/// a top of their own, and grow it here where a node's pushes would not
+/// fit.
+#[cfg(target_arch = "x86_64")]
+fn scratch<T: Copy>(stack: &mut Vec<T>, least: usize, fill: T) -> &mut [T] {
+    if stack.len() < least {
+        stack.resize(least, fill);
+    }
+    stack.as_mut_slice()
 }
 
 /// The rays of a group whose culling bound reaches the entry distance
