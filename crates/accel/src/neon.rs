@@ -113,26 +113,24 @@ pub(crate) fn slab8<const W: usize>(
     t: &mut [f32; W],
 ) -> u32 {
     assert!(W == 8);
-    let (lower, upper) = n.planes();
     let mut mask = 0;
     for half in [0, 4] {
-        let mut e = q::splat(r.tmin);
-        let mut x = q::splat(bound);
-        // Axis z first: the portable test nests its max and min so.
-        for a in [2, 1, 0] {
-            let (near, far) = if r.neg[a] {
-                (&upper[a], &lower[a])
-            } else {
-                (&lower[a], &upper[a])
-            };
+        let axis = |a: usize| {
+            let (near, far) = (n.plane_row(r.near[a]), n.plane_row(r.far[a]));
             let o = q::splat(r.origin[a]);
             let inv = q::splat(r.inv_dir[a]);
             let inv_exit = q::splat(r.inv_exit[a]);
             let lo = q::mul(q::sub(q::load(near, half), o), inv);
             let hi = q::mul(q::sub(q::load(far, half), o), inv_exit);
-            e = max_ns(lo, e);
-            x = min_ns(hi, x);
-        }
+            (lo, hi)
+        };
+        let (l0, h0) = axis(0);
+        let (l1, h1) = axis(1);
+        let (l2, h2) = axis(2);
+        // Two maxima side by side, then the greater of theirs, as the
+        // portable test takes them.
+        let e = max_ns(max_ns(l0, l1), max_ns(l2, q::splat(r.tmin)));
+        let x = min_ns(min_ns(h0, h1), min_ns(h2, q::splat(bound)));
         q::store(t, half, e);
         mask |= q::bits(q::le(e, x)) << half;
     }

@@ -385,18 +385,19 @@ pub(crate) fn slab_lanes(
     far: [f32; 3],
     bound: &[f32; LANES],
 ) -> (u32, [f32; LANES]) {
-    let mut e = p.tmin;
-    let mut x = *bound;
-    // slab_scalar nests z innermost: max(lo_x, max(lo_y, max(lo_z, tmin))).
-    for a in (0..3).rev() {
-        let (near, far) = (near[a], far[a]);
+    let (mut lo, mut hi) = ([[0.0f32; LANES]; 3], [[0.0f32; LANES]; 3]);
+    for a in 0..3 {
         for i in 0..LANES {
-            let lo = (near - p.origin[a][i]) * p.inv_dir[a][i];
-            let hi = (far - p.origin[a][i]) * p.inv_exit[a][i];
-            e[i] = max_ns(lo, e[i]);
-            x[i] = min_ns(hi, x[i]);
+            lo[a][i] = (near[a] - p.origin[a][i]) * p.inv_dir[a][i];
+            hi[a][i] = (far[a] - p.origin[a][i]) * p.inv_exit[a][i];
         }
     }
+    // Side by side as slab_scalar takes them: max(max(lo_x, lo_y),
+    // max(lo_z, tmin)).
+    let e: [f32; LANES] =
+        std::array::from_fn(|i| max_ns(max_ns(lo[0][i], lo[1][i]), max_ns(lo[2][i], p.tmin[i])));
+    let x: [f32; LANES] =
+        std::array::from_fn(|i| min_ns(min_ns(hi[0][i], hi[1][i]), min_ns(hi[2][i], bound[i])));
     (lane_mask(&std::array::from_fn(|i| e[i] <= x[i])), e)
 }
 

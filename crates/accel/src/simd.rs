@@ -311,14 +311,15 @@ unsafe fn slab8_avx(node: *const f32, r: &BoxRay, bound: f32, t: *mut f32) -> u3
         hi[a] = _mm256_mul_ps(_mm256_sub_ps(_mm256_loadu_ps(node.add(far)), o), inv_exit);
     }
     // `max_ps(a, b)` is `a > b ? a : b`, returning `b` when either is NaN:
-    // exactly `max_nan_second(a, b)`, nested in the fallback's order.
+    // exactly `max_nan_second(a, b)`, in the fallback's order (two side
+    // by side, then the greater of theirs: see `bvh::slab_scalar`).
     let e = _mm256_max_ps(
-        lo[0],
-        _mm256_max_ps(lo[1], _mm256_max_ps(lo[2], _mm256_set1_ps(r.tmin))),
+        _mm256_max_ps(lo[0], lo[1]),
+        _mm256_max_ps(lo[2], _mm256_set1_ps(r.tmin)),
     );
     let x = _mm256_min_ps(
-        hi[0],
-        _mm256_min_ps(hi[1], _mm256_min_ps(hi[2], _mm256_set1_ps(bound))),
+        _mm256_min_ps(hi[0], hi[1]),
+        _mm256_min_ps(hi[2], _mm256_set1_ps(bound)),
     );
     _mm256_storeu_ps(t, e);
     _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(e, x)) as u32
@@ -419,12 +420,12 @@ unsafe fn group_slab8_avx<const ENTRY: bool>(
             hi[a] = _mm256_mul_ps(_mm256_sub_ps(far[a], o), _mm256_set1_ps(g.inv_exit[a][i]));
         }
         let e = _mm256_max_ps(
-            lo[0],
-            _mm256_max_ps(lo[1], _mm256_max_ps(lo[2], _mm256_set1_ps(g.tmin[i]))),
+            _mm256_max_ps(lo[0], lo[1]),
+            _mm256_max_ps(lo[2], _mm256_set1_ps(g.tmin[i])),
         );
         let x = _mm256_min_ps(
-            hi[0],
-            _mm256_min_ps(hi[1], _mm256_min_ps(hi[2], _mm256_set1_ps(g.bound[i]))),
+            _mm256_min_ps(hi[0], hi[1]),
+            _mm256_min_ps(hi[2], _mm256_set1_ps(g.bound[i])),
         );
         let hit = _mm256_cmp_ps::<_CMP_LE_OQ>(e, x);
         if ENTRY {
@@ -898,19 +899,25 @@ unsafe fn packet_slab8_avx(
     out: &mut [f32; 8],
 ) -> u32 {
     use std::arch::x86_64::*;
-    let mut e = _mm256_loadu_ps(tmin.as_ptr());
-    let mut x = _mm256_loadu_ps(bound.as_ptr());
-    // z first, as the portable loop nests it.
-    for a in (0..3).rev() {
+    let mut lo = [_mm256_setzero_ps(); 3];
+    let mut hi = [_mm256_setzero_ps(); 3];
+    for a in 0..3 {
         let o = _mm256_loadu_ps(origin[a].as_ptr());
         let inv = _mm256_loadu_ps(inv_dir[a].as_ptr());
         let inv_exit = _mm256_loadu_ps(inv_exit[a].as_ptr());
-        let lo = _mm256_mul_ps(_mm256_sub_ps(_mm256_set1_ps(near[a]), o), inv);
-        let hi = _mm256_mul_ps(_mm256_sub_ps(_mm256_set1_ps(far[a]), o), inv_exit);
-        // max_ps(a, b) is max_nan_second(a, b); min_ps likewise.
-        e = _mm256_max_ps(lo, e);
-        x = _mm256_min_ps(hi, x);
+        lo[a] = _mm256_mul_ps(_mm256_sub_ps(_mm256_set1_ps(near[a]), o), inv);
+        hi[a] = _mm256_mul_ps(_mm256_sub_ps(_mm256_set1_ps(far[a]), o), inv_exit);
     }
+    // max_ps(a, b) is max_nan_second(a, b); min_ps likewise: side by side
+    // as the portable loop takes them.
+    let e = _mm256_max_ps(
+        _mm256_max_ps(lo[0], lo[1]),
+        _mm256_max_ps(lo[2], _mm256_loadu_ps(tmin.as_ptr())),
+    );
+    let x = _mm256_min_ps(
+        _mm256_min_ps(hi[0], hi[1]),
+        _mm256_min_ps(hi[2], _mm256_loadu_ps(bound.as_ptr())),
+    );
     _mm256_storeu_ps(out.as_mut_ptr(), e);
     _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(e, x)) as u32
 }
