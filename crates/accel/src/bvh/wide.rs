@@ -903,7 +903,7 @@ impl GroupRays {
     /// ([`Self::set`]).
     #[inline(always)]
     pub(crate) fn of_octant(octant: usize) -> Self {
-        let (_, near, far) = BoxRay::octant_rows(octant);
+        let (near, far) = BoxRay::octant_rows(octant);
         Self {
             origin: [[0.0; GROUP]; 3],
             inv_dir: [[0.0; GROUP]; 3],
@@ -931,7 +931,7 @@ impl GroupRays {
     /// bunny00 and the dragon, primary, shadow and diffuse rays).
     #[inline(always)]
     pub(crate) fn set(&mut self, i: usize, ray: &Ray) {
-        debug_assert_eq!(BoxRay::octant_rows(ray.octant()).1, self.near);
+        debug_assert_eq!(BoxRay::octant_rows(ray.octant()).0, self.near);
         let (o, inv) = (ray.origin().to_array(), ray.inv_dir().to_array());
         for a in 0..3 {
             self.origin[a][i] = o[a];
@@ -1845,7 +1845,7 @@ impl BoxRay {
     #[must_use]
     #[inline(always)]
     pub fn new(ray: &Ray) -> Self {
-        let (_, near, far) = Self::octant_rows(ray.octant());
+        let (near, far) = Self::octant_rows(ray.octant());
         Self {
             origin: ray.origin().to_array(),
             inv_dir: ray.inv_dir().to_array(),
@@ -1857,13 +1857,12 @@ impl BoxRay {
     }
 
     /// What a ray's direction octant ([`Ray::octant`]) decides of its node
-    /// test, by axis: the axes it runs backwards on, and the rows of a
-    /// node's bounds it meets first and last ([`Self::near`],
-    /// [`Self::far`]).
+    /// test, by axis: the rows of a node's bounds it meets first and last
+    /// ([`Self::near`], [`Self::far`]), upper bounds first on an axis it
+    /// runs backwards on.
     #[inline(always)]
-    pub(crate) fn octant_rows(oct: usize) -> ([bool; 3], [usize; 3], [usize; 3]) {
+    pub(crate) fn octant_rows(oct: usize) -> ([usize; 3], [usize; 3]) {
         (
-            [oct & 1 != 0, oct & 2 != 0, oct & 4 != 0],
             [0, 1, 2].map(|a| 8 * (a + 3 * ((oct >> a) & 1))),
             [0, 1, 2].map(|a| 8 * (a + 3 * (!oct >> a & 1))),
         )
@@ -1884,9 +1883,10 @@ impl BoxRay {
 /// three maxima, each waiting on the next; here two run side by side, x
 /// with y and z with `tmin`, and a third takes the greater, one step fewer
 /// on the chain of dependent steps from a node's load to its children
-/// (`raymesh-ab --accel bvh8` against the nested maxima, one ray at a
-/// time: 1.02–1.05 on the pig, bunny00 and the dragon, random, diffuse,
-/// primary and shadow rays). `max_ns(a, b)` passes over a NaN `a` but not
+/// (`raymesh-ab --accel bvh8 --size 512` against the nested maxima, one
+/// ray at a time: 1.01–1.07 on the pig, the dragon, bunny00 and
+/// polygon_mesh, random, diffuse, primary and shadow rays; shadow rays
+/// 1.03–1.07). `max_ns(a, b)` passes over a NaN `a` but not
 /// a NaN `b`: where y's entry is NaN (a ray with no y component, starting
 /// on a box's y plane), the pair gives NaN and the entry leaves out x's
 /// too, and so the exit: such a ray may enter a box the nested test would
