@@ -1904,7 +1904,8 @@ pub(crate) fn slab_scalar<const W: usize>(
 }
 
 /// [`slab_scalar`], its maxima and minima side by side (`BALANCED`) or
-/// nested as [`Aabb::slab`] nests them.
+/// nested as [`Aabb::slab`] nests them (what the tests check the side by
+/// side ones against).
 #[inline(always)]
 fn slab_scalar_with<const BALANCED: bool, const W: usize>(
     n: &WideNode<W>,
@@ -1938,18 +1939,6 @@ fn slab_scalar_with<const BALANCED: bool, const W: usize>(
         mask |= u32::from(e <= x) << i;
     }
     mask
-}
-
-/// [`slab_scalar`] with the maxima and minima nested as [`Aabb::slab`]
-/// nests them, what the side-by-side ones are checked against.
-#[cfg(test)]
-pub(crate) fn slab_scalar_nested<const W: usize>(
-    n: &WideNode<W>,
-    r: &BoxRay,
-    bound: f32,
-    t: &mut [f32; W],
-) -> u32 {
-    slab_scalar_with::<false, W>(n, r, bound, t)
 }
 
 /// A traversal stack item: a node (`count == 0`) or a leaf, and the ray's
@@ -3044,7 +3033,7 @@ mod tests {
             r.tmin = tmin;
             let (mut tb, mut tn) = ([0.0f32; 8], [0.0f32; 8]);
             let side = slab_scalar(&node, &r, bound, &mut tb);
-            let nested = slab_scalar_nested(&node, &r, bound, &mut tn);
+            let nested = slab_scalar_with::<false, 8>(&node, &r, bound, &mut tn);
             if r.inv_dir[1].is_finite() && r.inv_exit[1].is_finite() {
                 prop_assert_eq!(side, nested);
                 for i in 0..8 {
@@ -3068,7 +3057,7 @@ mod tests {
         let mut t = [0.0f32; 8];
         let along = Ray::new(Vec3::new(-1.0, 0.0, 0.5), Vec3::X, 0.0, f32::INFINITY);
         let r = BoxRay::new(&along);
-        assert_eq!(slab_scalar_nested(&node, &r, 0.5, &mut t), 0);
+        assert_eq!(slab_scalar_with::<false, 8>(&node, &r, 0.5, &mut t), 0);
         assert_eq!(slab_scalar(&node, &r, 0.5, &mut t), 1);
         assert_eq!(slab_scalar(&node, &r, 2.0, &mut t), 1);
         for (o, d) in [
@@ -3078,7 +3067,7 @@ mod tests {
         ] {
             let r = BoxRay::new(&Ray::new(o, d, 0.0, f32::INFINITY));
             for bound in [0.5, 2.0] {
-                let nested = slab_scalar_nested(&node, &r, bound, &mut t);
+                let nested = slab_scalar_with::<false, 8>(&node, &r, bound, &mut t);
                 assert_eq!(slab_scalar(&node, &r, bound, &mut t), nested, "{o} {d}");
             }
         }
