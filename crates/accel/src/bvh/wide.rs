@@ -2436,6 +2436,60 @@ mod tests {
         }
     }
 
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(4000))]
+        /// `enter` pushes a node's entered children, all but the one it
+        /// returns, in the order of a stable sort of the slots by entry,
+        /// farthest first (so that on a tie the later slot is nearer), and
+        /// returns the nearest; unordered, in slot order. Whatever the
+        /// stack held before stays below, untouched. Entries drawn from a
+        /// few values, so that ties are common.
+        #[test]
+        fn enter_sorts_the_entered_children(
+            mask in 0u32..256,
+            t in proptest::array::uniform8(prop_oneof![
+                (0u8..4).prop_map(f32::from),
+                -1.0f32..10.0,
+            ]),
+            below in 0usize..8,
+            ordered in any::<bool>(),
+        ) {
+            let mut n = Node8::empty();
+            for k in 0..8 {
+                n.child[k] = 100 + k as u32;
+                n.count[k] = 1;
+            }
+            let mut items = [Entry::NONE; INLINE];
+            let mut stack = WalkStack::new(&mut items);
+            let old = |i: usize| Entry { child: i as u32, count: 9, entry: -(i as f32) };
+            for i in 0..below {
+                stack.push(old(i));
+            }
+            let got = if ordered {
+                enter::<true, 8>(&[], &n, mask, &t, &mut stack, &|_| {})
+            } else {
+                enter::<false, 8>(&[], &n, mask, &t, &mut stack, &|_| {})
+            };
+            let mut want: Vec<usize> = (0..8).filter(|k| mask >> k & 1 != 0).collect();
+            if ordered {
+                want.sort_by(|&a, &b| t[b].partial_cmp(&t[a]).expect("no NaN"));
+            }
+            prop_assert_eq!(got.map(|e| e.child), want.last().map(|&k| 100 + k as u32));
+            let pushed = want.len().saturating_sub(1);
+            prop_assert_eq!(stack.len, below + pushed);
+            for i in 0..below {
+                prop_assert_eq!(stack.items[i].child, old(i).child);
+            }
+            for (j, &k) in want[..pushed].iter().enumerate() {
+                let e = stack.items[below + j];
+                prop_assert_eq!((e.child, e.count), (100 + k as u32, 1));
+                if ordered {
+                    prop_assert_eq!(e.entry.to_bits(), t[k].to_bits());
+                }
+            }
+        }
+    }
+
     /// The AVX2 walk, whose stack stays inline, visits the leaves the
     /// spilling walk visits, in the same order, where they fit, and stops
     /// (returning false) where they would not: 7 items a level, 2 levels
