@@ -10,7 +10,7 @@
 # built again with the merged profile (`-Cprofile-use`). The profile must
 # come from the binary it optimizes: the library's generic code is
 # compiled into each binary, and a profile taken from another binary does
-# not match it (it then changes nothing). The binaries land in
+# not match it (its walks then compile as without one). The binaries land in
 # `target/pgo/use/release/`; the plain build in `target/` is untouched.
 #
 # `--features LIST` is passed to the bench crate (e.g. `embree,openmesh`,
