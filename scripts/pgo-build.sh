@@ -10,8 +10,9 @@
 # built again with the merged profile (`-Cprofile-use`). The profile must
 # come from the binary it optimizes: the library's generic code is
 # compiled into each binary, and a profile taken from another binary does
-# not match it (its walks then compile as without one). The binaries land in
-# `target/pgo/use/release/`; the plain build in `target/` is untouched.
+# not match it (its walks then compile as without one). The binaries
+# land in `target/pgo/use/release/`; the plain build in `target/` is
+# untouched.
 #
 # `--features LIST` is passed to the bench crate (e.g. `embree,openmesh`,
 # which need Debian's libembree-dev and libopenmesh-dev). Needs
@@ -31,7 +32,7 @@ while [ $# -gt 0 ]; do
         --bench) bench=true ;;
         --features) features="${2:?--features needs a list}"; shift ;;
         --check) check=true ;;
-        -h | --help) sed -n '2,21p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+        -h | --help) sed -n '2,22p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
         *) echo "pgo-build.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
     esac
     shift
@@ -75,9 +76,19 @@ train() {
 }
 
 if $check; then
+    bins=(raymesh)
+    if $bench; then
+        bins+=(raymesh-peers raymesh-ab)
+    fi
+    for b in "${bins[@]}"; do
+        if [ ! -x "target/release/$b" ]; then
+            echo "pgo-build.sh: --check needs target/release/$b: build it first (cargo build --release)" >&2
+            exit 1
+        fi
+    done
     work="$(mktemp -d)"
+    trap 'rm -rf "$work"' EXIT
     train "$PWD/target/release" "$work"
-    rm -rf "$work"
     echo "the training ran"
     exit 0
 fi
