@@ -32,7 +32,10 @@ use std::time::Instant;
 
 /// What a child prints once its scene is built, before the first chunk;
 /// the parent checks it, so a baseline too old to serve fails clearly.
-const READY: &str = "raymesh-ab ready v1";
+/// v2: a chunk's time covers its queries alone, the checksum taken after
+/// the clock stops (v1 timed it too: see [`trace`]), so v1 and v2 builds
+/// are not compared.
+const READY: &str = "raymesh-ab ready v2";
 
 /// Compares two builds of raymesh on the same rays, chunk by chunk.
 #[derive(Parser)]
@@ -240,6 +243,7 @@ fn serve(args: &Args) -> Result<()> {
     let rays_path = args.rays.as_deref().context("--serve needs --rays")?;
     let rays = npy::read_rays(rays_path)?;
     let scene = build_scene(args)?;
+    let mut hits = Vec::new();
     let mut out = std::io::stdout().lock();
     writeln!(out, "{READY} {}", rays.len())?;
     out.flush()?;
@@ -255,9 +259,19 @@ fn serve(args: &Args) -> Result<()> {
                     "chunk {first}..{end} out of range"
                 );
                 let query = Query::parse(query)?;
+                hits.clear();
+                hits.resize(end - first, None);
                 let start = Instant::now();
-                let sum = trace(&scene, &rays[first..end], query, args.packets, args.stream);
+                trace_into(
+                    &scene,
+                    &rays[first..end],
+                    query,
+                    args.packets,
+                    args.stream,
+                    &mut hits,
+                );
                 let ns = start.elapsed().as_nanos();
+                let sum = checksum(&hits);
                 writeln!(out, "{ns} {sum:016x}")?;
                 out.flush()?;
             }
@@ -268,35 +282,61 @@ fn serve(args: &Args) -> Result<()> {
 }
 
 /// Traces `rays` on this thread and returns a checksum of the hits.
+#[cfg(test)]
 fn trace(scene: &Scene<Triangles>, rays: &[Ray], query: Query, packets: bool, stream: bool) -> u64 {
-    let mut sum = Checksum::default();
+    let mut hits = vec![None; rays.len()];
+    trace_into(scene, rays, query, packets, stream, &mut hits);
+    checksum(&hits)
+}
+
+/// Traces `rays` on this thread into `hits` (one each): what a chunk's
+/// time covers. The checksum is taken afterwards: FNV-1a is a chain of 16
+/// dependent multiplies a ray, which timed with the queries (protocol v1)
+/// added its latency to every ray and, being the harness's own code, moved
+/// with the harness's compilation (a build profiled in its raymesh crates
+/// but not raymesh_accel read 1.05–1.09× the plain one on a Zen 3, the
+/// walks' code unchanged instruction for instruction).
+fn trace_into(
+    scene: &Scene<Triangles>,
+    rays: &[Ray],
+    query: Query,
+    packets: bool,
+    stream: bool,
+    hits: &mut [Option<BareHit>],
+) {
+    assert_eq!(rays.len(), hits.len());
     let one = |r: &Ray| match query {
         Query::Closest => scene.intersect_bare(r),
         Query::AnyHit => scene.any_hit_bare(r),
     };
     if stream {
-        let mut hits = vec![None; rays.len().min(1024)];
-        for part in rays.chunks(1024) {
-            let hits = &mut hits[..part.len()];
-            scene.stream_bare(part, query == Query::AnyHit, hits);
-            hits.iter().for_each(|h| sum.add(*h));
+        for (part, out) in rays.chunks(1024).zip(hits.chunks_mut(1024)) {
+            scene.stream_bare(part, query == Query::AnyHit, out);
         }
     } else if packets {
-        for part in rays.chunks(LANES) {
+        for (part, out) in rays.chunks(LANES).zip(hits.chunks_mut(LANES)) {
             if let Ok(packet) = <&[Ray; LANES]>::try_from(part) {
-                match query {
+                out.copy_from_slice(&match query {
                     Query::Closest => scene.intersect8_bare(packet),
                     Query::AnyHit => scene.any_hit8_bare(packet),
-                }
-                .into_iter()
-                .for_each(|h| sum.add(h));
+                });
             } else {
-                part.iter().for_each(|r| sum.add(one(r)));
+                for (r, h) in part.iter().zip(out) {
+                    *h = one(r);
+                }
             }
         }
     } else {
-        rays.iter().for_each(|r| sum.add(one(r)));
+        for (r, h) in rays.iter().zip(hits) {
+            *h = one(r);
+        }
     }
+}
+
+/// [`Checksum`] of `hits` in order.
+fn checksum(hits: &[Option<BareHit>]) -> u64 {
+    let mut sum = Checksum::default();
+    hits.iter().for_each(|h| sum.add(*h));
     sum.0
 }
 
@@ -378,6 +418,16 @@ impl Server {
         };
         let line = server.read_line()?;
         let expected = format!("{READY} {n}");
+        if line.starts_with("raymesh-ab ready v1 ") {
+            bail!(
+                "the {name} build ({}) is a raymesh-ab from before v2, which timed its \
+                 checksum with the queries (about 16 dependent multiplies a ray): its \
+                 figures are not comparable. Build the baseline with this version's \
+                 crates/bench/src/ab.rs (e.g. `git checkout OLD && git checkout main -- \
+                 crates/bench/src/ab.rs`, then build raymesh-ab)",
+                binary.display()
+            );
+        }
         if line != expected {
             bail!(
                 "the {name} build ({}) answered '{line}' where '{expected}' was expected: \
