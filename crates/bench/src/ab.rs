@@ -33,7 +33,7 @@ use std::time::Instant;
 /// What a child prints once its scene is built, before the first chunk;
 /// the parent checks it, so a baseline too old to serve fails clearly.
 /// v2: a chunk's time covers its queries alone, the checksum taken after
-/// the clock stops (v1 timed it too: see [`trace`]), so v1 and v2 builds
+/// the clock stops (v1 timed it too: see [`trace_into`]), so v1 and v2 builds
 /// are not compared.
 const READY: &str = "raymesh-ab ready v2";
 
