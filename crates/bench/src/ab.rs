@@ -710,11 +710,7 @@ mod tests {
                 v: 0.5,
             })
         };
-        let sum = |hits: &[Option<BareHit>]| {
-            let mut c = Checksum::default();
-            hits.iter().for_each(|h| c.add(*h));
-            c.0
-        };
+        let sum = checksum;
         assert_eq!(sum(&[hit(1.0), None]), sum(&[hit(1.0), None]));
         assert_ne!(sum(&[hit(1.0), None]), sum(&[None, hit(1.0)]));
         assert_ne!(
