@@ -19,7 +19,10 @@
 # functions compiled for no AVX at all, and `bvh8` ran 4 times slower
 # (`raymesh-ab` on the dragon: 0.24x) with every test passing. The
 # symbols of those intrinsics (`core::core_arch::x86::avx::_mm256_*`)
-# are what this looks for; a sound build has none.
+# are what this looks for; a sound build has none. A profile-guided build
+# may have some where its training ran a walk rarely or never (LLVM then
+# compiles the walk as cold code): scripts/pgo-build.sh runs this on its
+# binaries and says so.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 

@@ -62,6 +62,10 @@ train() {
             done
         done
         "$bin/raymesh" render "$m" --width 160 --height 120 --threads 1 -o "$work/$mesh.png" >/dev/null
+        # The counting walks: a heat map, and the counts `--stats` adds.
+        "$bin/raymesh" render "$m" --heatmap --width 80 --height 60 --threads 1 -o "$work/$mesh-heat.png" >/dev/null
+        "$bin/raymesh" raycast "$m" --rays "$work/$mesh-random.npy" --accel bvh8 --stats --threads 1 >/dev/null
+        "$bin/raymesh" raycast "$m" --rays "$work/$mesh-random.npy" --accel bvh8 --stats --any-hit --threads 1 >/dev/null
         if $bench; then
             "$bin/raymesh-peers" "$m" --peers none --accel bvh8 --threads 1 --size 256 >/dev/null
             for w in primary random shadow; do
@@ -73,6 +77,33 @@ train() {
         fi
     done
     "$bin/raymesh" render --width 160 --height 120 --threads 1 -o "$work/demo.png" >/dev/null
+    "$bin/raymesh" render --heatmap --width 80 --height 60 --threads 1 -o "$work/demo-heat.png" >/dev/null
+}
+
+# The builds of the walks the training can run on this CPU. Where it has
+# AVX-512F and AVX-512VL the 8-wide walks run compiled for them, and the
+# training runs a second time with them off (RAYMESH_AVX512=off), so that
+# their AVX2 builds, which CPUs without AVX-512 run, are trained too.
+# Elsewhere the AVX-512 builds are left out of the binaries
+# (`--cfg raymesh_no_avx512`): code the training never ran, LLVM compiles
+# as cold, and it left those walks' closures out of line, every kernel
+# intrinsic a call to a function compiled for no AVX, so that the binary
+# traced several times slower on a CPU with AVX-512 than here.
+avx512=false
+if grep -qw avx512f /proc/cpuinfo 2>/dev/null && grep -qw avx512vl /proc/cpuinfo 2>/dev/null; then
+    avx512=true
+fi
+cfg=""
+if ! $avx512; then
+    cfg="--cfg raymesh_no_avx512"
+fi
+
+# The training, twice where the CPU has AVX-512 (see above).
+train_all() {
+    train "$1" "$2"
+    if $avx512; then
+        (export RAYMESH_AVX512=off && train "$1" "$2")
+    fi
 }
 
 if $check; then
@@ -88,7 +119,7 @@ if $check; then
     done
     work="$(mktemp -d)"
     trap 'rm -rf "$work"' EXIT
-    train "$PWD/target/release" "$work"
+    train_all "$PWD/target/release" "$work"
     echo "the training ran"
     exit 0
 fi
@@ -121,18 +152,40 @@ if $bench; then
     fi
 fi
 
+if $avx512; then
+    echo "== this CPU has AVX-512: the training runs with and without it"
+else
+    echo "== this CPU has no AVX-512: the binaries are built without the AVX-512 walks ($cfg)"
+fi
+
 echo "== instrumented build"
-RUSTFLAGS="-Cprofile-generate=$profiles" \
+RUSTFLAGS="-Cprofile-generate=$profiles $cfg" \
     cargo build --release --target-dir "$root/gen" "${packages[@]}"
 
 echo "== training"
-train "$root/gen/release" "$work"
+train_all "$root/gen/release" "$work"
 
 echo "== merging $(find "$profiles" -name '*.profraw' | wc -l) profiles"
 "$tool" merge -o "$root/merged.profdata" "$profiles"
 
 echo "== optimized build"
-RUSTFLAGS="-Cprofile-use=$root/merged.profdata" \
+RUSTFLAGS="-Cprofile-use=$root/merged.profdata $cfg" \
     cargo build --release --target-dir "$root/use" "${packages[@]}"
+
+# A profile changes what LLVM inlines: code the training ran rarely or
+# never is compiled as cold, and a walk's closure found cold stays out of
+# line with its kernel's intrinsics as calls (several times slower than
+# in the plain build). Say where (scripts/check-kernels-inlined.sh).
+built=("$root/use/release/raymesh")
+if $bench; then
+    built+=("$root/use/release/raymesh-peers" "$root/use/release/raymesh-ab")
+fi
+echo "== kernels inlined"
+if ! scripts/check-kernels-inlined.sh "${built[@]}"; then
+    echo "pgo-build.sh: some walks the training ran rarely or never were compiled as cold code,"
+    echo "  their kernels out of line: they run slower than in the plain build. The training"
+    echo "  covers bvh8's one-ray, packet and stream walks, heat maps and --stats; add the"
+    echo "  work that matters to you to train() if it is not there."
+fi
 
 echo "PGO binaries in target/pgo/use/release/"

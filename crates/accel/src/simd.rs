@@ -55,7 +55,10 @@ fn find_level() -> u8 {
     let work_out = || {
         if !(SIMD_ENABLED.load(Ordering::SeqCst) && cpu_has_avx2()) {
             NO_AVX2
-        } else if AVX512_ENABLED.load(Ordering::SeqCst) && cpu_has_avx512vl() {
+        } else if AVX512_ENABLED.load(Ordering::SeqCst)
+            && cpu_has_avx512vl()
+            && !avx512_off_by_env()
+        {
             AVX512
         } else {
             AVX2
@@ -151,18 +154,30 @@ pub fn set_avx512_enabled(on: bool) {
 }
 
 /// Whether this CPU has AVX-512F and AVX-512VL (detected once, then a
-/// cached load).
+/// cached load). Always false in a build with `--cfg raymesh_no_avx512`
+/// (see [`Avx2::wide`]).
 #[inline(always)]
 #[must_use]
 fn cpu_has_avx512vl() -> bool {
-    #[cfg(target_arch = "x86_64")]
+    #[cfg(all(target_arch = "x86_64", not(raymesh_no_avx512)))]
     {
         std::is_x86_feature_detected!("avx512f") && std::is_x86_feature_detected!("avx512vl")
     }
-    #[cfg(not(target_arch = "x86_64"))]
+    #[cfg(not(all(target_arch = "x86_64", not(raymesh_no_avx512))))]
     {
         false
     }
+}
+
+/// Whether the environment turns the AVX-512 builds off:
+/// `RAYMESH_AVX512=off` (or `0`), read where the SIMD level is worked out
+/// (at the first query, and again after each switch). The same as
+/// [`set_avx512_enabled`]`(false)` for programs that do not call it: a
+/// profile-guided build's training runs its binaries once with and once
+/// without, so that both builds of the walks are trained on a CPU with
+/// AVX-512 (`scripts/pgo-build.sh`).
+fn avx512_off_by_env() -> bool {
+    std::env::var_os("RAYMESH_AVX512").is_some_and(|v| v == "off" || v == "0")
 }
 
 /// `avx.run_wide(f)` where the proof `avx` allows AVX-512, else
@@ -1155,10 +1170,17 @@ impl Avx2 {
     }
 
     /// Whether [`Self::run_wide`] may run: the CPU has AVX-512F and
-    /// AVX-512VL.
+    /// AVX-512VL. Built with `--cfg raymesh_no_avx512`, a constant false,
+    /// so that the AVX-512 builds of the walks are not compiled at all:
+    /// what a profile-guided build made on a CPU without AVX-512 does
+    /// (`scripts/pgo-build.sh`). Its training cannot run them, and LLVM
+    /// compiles code the profile never saw as cold, for size: their walks'
+    /// closures stayed out of line, every intrinsic a call to a function
+    /// compiled for no AVX, and the binary would have traced several times
+    /// slower on a CPU with AVX-512 than on the one it was built on.
     #[inline(always)]
     pub(crate) fn wide(self) -> bool {
-        self.wide
+        !cfg!(raymesh_no_avx512) && self.wide
     }
 
     /// [`Self::run`] compiled for AVX-512F and AVX-512VL as well: the same
@@ -1617,6 +1639,36 @@ mod tests {
     use crate::test_util::{hard_coord, hard_vec3, lanes_match, lattice, node_kernel_matches};
     use proptest::prelude::*;
     use raymesh_geometry::{Aabb, Ray, Vec3};
+
+    /// `RAYMESH_AVX512=off` (or `0`) turns the AVX-512 builds off, as
+    /// `set_avx512_enabled(false)` does; any other value or none leaves
+    /// them to the CPU. (Other tests in this process may see the variable
+    /// set meanwhile: they then run the AVX2 builds, whose results are the
+    /// same, bit for bit.)
+    #[test]
+    fn the_environment_turns_avx512_off() {
+        for (value, off) in [
+            ("off", true),
+            ("0", true),
+            ("on", false),
+            ("1", false),
+            ("", false),
+        ] {
+            std::env::set_var("RAYMESH_AVX512", value);
+            assert_eq!(avx512_off_by_env(), off, "RAYMESH_AVX512={value:?}");
+            if off {
+                // Worked out again after a switch, from the variable too.
+                set_avx512_enabled(true);
+                assert!(
+                    Avx2::detect().is_none_or(|a| !a.wide()),
+                    "RAYMESH_AVX512={value:?}"
+                );
+            }
+        }
+        std::env::remove_var("RAYMESH_AVX512");
+        assert!(!avx512_off_by_env());
+        set_avx512_enabled(true);
+    }
 
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(4000))]
