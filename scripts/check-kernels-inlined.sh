@@ -15,7 +15,7 @@
 # compiled outside the AVX2 region, where every intrinsic of the kernel
 # still counts as a call. The one-ray closest-hit walk sits near that
 # limit: one branch added to the kernel (an early return, stop 61) took
-# its leaf closure past it, the kernel's 378 intrinsics became calls to
+# its leaf closure past it, the 378 intrinsic calls in it stayed calls to
 # functions compiled for no AVX at all, and `bvh8` ran 4 times slower
 # (`raymesh-ab` on the dragon: 0.24x) with every test passing. The
 # symbols of those intrinsics (`core::core_arch::x86::avx::_mm256_*`)
