@@ -590,11 +590,16 @@ impl<const W: usize> WideBvh<W> {
         loop {
             // Nodes, in an inner loop of their own that makes no call (the
             // stack's inline part has room for a node's pushes, and pops
-            // come from it): the register allocator then keeps the node
-            // test's ray constants in registers across it, and moves them
-            // aside only around the leaf test and the stack's spills below.
-            // (With a growing `Vec` push in the loop, every node reloaded
-            // them from memory: +6% instructions a ray on bunny00.)
+            // come from it). (With a growing `Vec` push in the loop, every
+            // node reloaded the node test's ray constants from memory: +6%
+            // instructions a ray on bunny00.) In the AVX2 one-ray walks,
+            // whose leaf kernel inlines into the same loop, LLVM still
+            // broadcasts the ten ray constants from stack slots and reloads
+            // the six row offsets at every node; this loop as a function
+            // of its own, compiled for AVX2, kept them in registers (37
+            // instructions a node from the loop's head to the branch on the
+            // mask, against 55) but its calls cost more than that saved:
+            // 0.79-0.90x (README, stop 62's bullet).
             let mut emptied = false;
             while cur.count == 0 {
                 if !stack.has_room(W - 1) {
