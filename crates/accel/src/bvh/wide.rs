@@ -595,11 +595,11 @@ impl<const W: usize> WideBvh<W> {
             // instructions a ray on bunny00.) In the AVX2 one-ray walks,
             // whose leaf kernel inlines into the same loop, LLVM still
             // broadcasts the ten ray constants from stack slots and reloads
-            // the six row offsets at every node; this loop as a function
-            // of its own, compiled for AVX2, kept them in registers (37
-            // instructions a node from the loop's head to the branch on the
-            // mask, against 55) but its calls cost more than that saved:
-            // 0.79-0.90x (README, stop 62's bullet).
+            // the six row offsets at every node (55 instructions from the
+            // loop's head to the mask); kept in registers (31 or 37, the
+            // ray form re-read after each leaf through `black_box`, or this
+            // loop as an AVX2 function of its own), rays ran slower:
+            // 0.79-0.97x (README, stop 62's bullet).
             let mut emptied = false;
             while cur.count == 0 {
                 if !stack.has_room(W - 1) {
