@@ -150,6 +150,39 @@ pub trait Primitives: Send + Sync {
             each(i, mask, hits);
         }
     }
+    /// [`Self::intersect_block_pre`] of each ray `i` in `rays` (a bit each,
+    /// rays of a group: `ray(i)`, its constants `pre[i]`, its bound
+    /// `tmax(i)`; `classes[c]`, the group's rays of
+    /// [`BlockRay::axis_class`] `c`), against the block
+    /// `first..first + count`, each ray's mask and hits handed to
+    /// `each(i, mask, hits)`. The same results. Triangles load the
+    /// block's rows once for the rays that share an axis order; the
+    /// default tests each ray.
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn intersect_block_rays<'r>(
+        &self,
+        avx: Avx2,
+        first: u32,
+        count: u32,
+        rays: u32,
+        pre: &[BlockRay; crate::bvh::GROUP],
+        ray: impl Fn(usize) -> &'r Ray,
+        tmax: impl Fn(usize) -> f32,
+        classes: &[u32; crate::simd::AXIS_CLASSES],
+        mut each: impl FnMut(usize, u32, BlockHits),
+    ) {
+        let _ = classes;
+        let mut m = rays;
+        while m != 0 {
+            let i = m.trailing_zeros() as usize % crate::bvh::GROUP;
+            m &= m - 1;
+            let (mask, hits) =
+                self.intersect_block_pre(avx, &pre[i], first, count, ray(i), tmax(i));
+            each(i, mask, hits);
+        }
+    }
     /// Tests primitives `ids` (at most [`BLOCK`]; lane `k` is primitive
     /// `ids[k]`) as [`Self::intersect_block`] tests consecutive ones: the
     /// k-d tree's leaves and the grid's cells name their primitives by
@@ -707,6 +740,26 @@ impl Primitives for Triangles {
             self.intersect_block(first, count, ray, tmax)
         }
     }
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    fn intersect_block_rays<'r>(
+        &self,
+        avx: Avx2,
+        first: u32,
+        count: u32,
+        rays: u32,
+        pre: &[BlockRay; crate::bvh::GROUP],
+        _ray: impl Fn(usize) -> &'r Ray,
+        tmax: impl Fn(usize) -> f32,
+        classes: &[u32; crate::simd::AXIS_CLASSES],
+        each: impl FnMut(usize, u32, BlockHits),
+    ) {
+        let count = (count as usize).min(BLOCK);
+        let first = first as usize;
+        assert!(first + count <= self.len);
+        let data = self.data();
+        crate::simd::triangles8_rays(avx, data, first, count, rays, pre, classes, tmax, each);
+    }
     // Elsewhere the default: the portable block test of each lane's ray.
     #[cfg(target_arch = "x86_64")]
     #[inline(always)]
@@ -982,6 +1035,22 @@ impl<P: Primitives + ?Sized> Primitives for &P {
         each: impl FnMut(usize, u32, BlockHits),
     ) {
         (**self).intersect_block_lanes(avx, first, count, p, lanes, tmax, each);
+    }
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    fn intersect_block_rays<'r>(
+        &self,
+        avx: Avx2,
+        first: u32,
+        count: u32,
+        rays: u32,
+        pre: &[BlockRay; crate::bvh::GROUP],
+        ray: impl Fn(usize) -> &'r Ray,
+        tmax: impl Fn(usize) -> f32,
+        classes: &[u32; crate::simd::AXIS_CLASSES],
+        each: impl FnMut(usize, u32, BlockHits),
+    ) {
+        (**self).intersect_block_rays(avx, first, count, rays, pre, ray, tmax, classes, each);
     }
     #[inline(always)]
     fn intersect_ids(&self, ids: &[u32], ray: &Ray, tmax: f32) -> (u32, BlockHits) {

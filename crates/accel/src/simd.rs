@@ -1254,7 +1254,21 @@ impl BlockRay {
     }
 }
 
+/// A bound on the values [`BlockRay::axis_class`] takes.
+#[cfg(target_arch = "x86_64")]
+pub(crate) const AXIS_CLASSES: usize = 16;
+
 impl BlockRay {
+    /// Which rows of a block the kernel reads for this ray, as a number
+    /// below [`AXIS_CLASSES`]: rays with the same number read the same
+    /// rows ([`triangles8_rays`]). (The first two axes' rows name the
+    /// permutation: 9 values for the rows `kernel_axes` gives.)
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    pub(crate) fn axis_class(&self) -> usize {
+        ((self.axes[0] / GROUP_SLOTS) * 3 + self.axes[1] / GROUP_SLOTS) % AXIS_CLASSES
+    }
+
     /// [`Self::new`] of lane `i` of the packet `p`, from its rows: the same
     /// constants, with no `Ray` of the lane made.
     #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
@@ -1366,6 +1380,66 @@ pub(crate) fn triangles8_lanes(
             unsafe { triangles8_loaded(&block, ray.shear, ray.origin, ray.tmin, tmax[i]) };
         let (hit, redo, out) = active_lanes(hit, count, out);
         each(i, hit, redo, out);
+    }
+}
+
+/// [`triangles8_pre`] of each ray `i` in `rays` (a bit each), with the
+/// constants `pre[i]` and the bound `tmax(i)`, against one block: its
+/// rows loaded once for all the rays that share an axis order (those of
+/// `classes[c]`, the group's rays of [`BlockRay::axis_class`] `c`),
+/// which read the same rows, and each ray's hit mask and hits handed to
+/// `each(i, hit, hits)`, a class at a time. A group's leaf that several
+/// of its rays reach is tested so: ray by ray, each test found the
+/// block's place, and loaded and blended its nine rows, again. The same
+/// results as [`triangles8_pre`] ray by ray, bit for bit (nothing is
+/// left to redo).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn triangles8_rays(
+    _avx: Avx2,
+    data: &[f32],
+    first: usize,
+    count: usize,
+    rays: u32,
+    pre: &[BlockRay; crate::bvh::GROUP],
+    classes: &[u32; AXIS_CLASSES],
+    tmax: impl Fn(usize) -> f32,
+    mut each: impl FnMut(usize, u32, BlockHits),
+) {
+    let (at, span) = block_at(first, count);
+    assert!(at + block_reach(span) <= data.len());
+    let mut left = rays;
+    while left != 0 {
+        let first_ray = left.trailing_zeros() as usize % crate::bvh::GROUP;
+        let axes = pre[first_ray].axes;
+        // The first ray at least, whatever `classes` says.
+        let m = left & classes[pre[first_ray].axis_class()] | 1 << first_ray;
+        left &= !m;
+        // SAFETY: every row offset is at most 64 (a `BlockRay`'s axes come
+        // from `kernel_axes`, or are zero by default), so each of the two
+        // loads of 8 lanes a row stays inside `data` (asserted); the CPU
+        // has AVX2 (the `Avx2` proof).
+        let block = unsafe {
+            load_block8(
+                data.as_ptr().add(at),
+                |r| kernel_row(r, axes),
+                first % GROUP_SLOTS,
+                span,
+            )
+        };
+        let mut m = m;
+        while m != 0 {
+            let i = m.trailing_zeros() as usize % crate::bvh::GROUP;
+            m &= m - 1;
+            let p = &pre[i];
+            debug_assert_eq!(p.axes, axes, "`classes` joins rays of one axis order");
+            // SAFETY: the CPU has AVX2 (the `Avx2` proof).
+            let (hit, out) =
+                unsafe { triangles8_loaded(&block, p.shear, p.origin, p.tmin, tmax(i)) };
+            let (hit, _, out) = active_lanes(hit, count, out);
+            each(i, hit, out);
+        }
     }
 }
 
@@ -1998,6 +2072,60 @@ mod tests {
 
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(2000))]
+        /// A block tested for several rays of a group at once, its rows
+        /// loaded once for each axis order among them, gives each ray
+        /// asked for, once, what the scalar test gives it with its own
+        /// bound, bit for bit: rays of any directions (so of several axis
+        /// orders in one call), any subset of up to 32.
+        #[test]
+        fn block_for_several_rays_matches_scalar(
+            tris in proptest::collection::vec(
+                prop_oneof![(hard_vec3(), hard_vec3(), hard_vec3()), (lattice(), lattice(), lattice())], 32),
+            first in 0usize..24, count in 0usize..9,
+            rays in proptest::collection::vec(
+                (prop_oneof![hard_vec3(), lattice()], prop_oneof![hard_vec3(), lattice()],
+                 prop_oneof![Just(0.0f32), hard_coord()], hard_coord()), 1..=32),
+            asked in any::<u32>(),
+        ) {
+            prop_assume!(cpu_has_avx2());
+            let len = (first + count).min(tris.len());
+            let corners: Vec<[Vec3; 3]> = tris[..len].iter().map(|&(a, b, c)| [a, b, c]).collect();
+            let tris = crate::Triangles::from_corners(&corners);
+            let made: Vec<(Ray, f32)> = rays
+                .iter()
+                .map(|&(o, d, tmin, tmax)| (Ray::new(o, d, tmin, f32::INFINITY), tmax))
+                .collect();
+            let mut pre = [BlockRay::default(); crate::bvh::GROUP];
+            let mut classes = [0u32; AXIS_CLASSES];
+            for (k, (r, _)) in made.iter().enumerate() {
+                pre[k] = BlockRay::new(r);
+                classes[pre[k].axis_class()] |= 1 << k;
+            }
+            let asked = asked & (u32::MAX >> (32 - made.len()));
+            let count = count.min(len - first.min(len));
+            let first = first.min(len);
+            let avx = Avx2::detect().expect("AVX2, kernels on");
+            let mut results = Vec::new();
+            crate::Primitives::intersect_block_rays(
+                &tris, avx, first as u32, count as u32, asked, &pre,
+                |i| &made[i].0, |i| made[i].1, &classes,
+                |i, mask, out| results.push((i, mask, out)),
+            );
+            let mut seen: Vec<usize> = results.iter().map(|&(i, _, _)| i).collect();
+            seen.sort_unstable();
+            let want: Vec<usize> = (0..made.len()).filter(|i| asked >> i & 1 != 0).collect();
+            prop_assert_eq!(&seen, &want);
+            for (i, mask, out) in results {
+                let (ray, tmax) = &made[i];
+                lanes_match(mask, &out, |k| {
+                    (k < count).then(|| {
+                        let [a, b, c] = corners[first + k];
+                        raymesh_geometry::intersect_triangle(ray, *tmax, a, b, c)
+                    })?
+                })?;
+            }
+        }
+
         /// Triangles named by a list (a k-d tree's leaf, a grid cell;
         /// repeats allowed) gathered into a block give what the scalar
         /// test gives each, lane by lane, bit for bit.

@@ -1044,7 +1044,38 @@ impl<const W: usize> WideBvh<W> {
     /// Which rays of a group (`g`'s first `len`, at most [`GROUP`], in one
     /// octant) hit anything: a bit each in the returned mask, set when
     /// `leaf(i, first, count)`, which tests ray `i` against a leaf,
-    /// returned true.
+    /// returned true. [`Self::occluded_group_by`] with the leaf tested
+    /// ray by ray.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn occluded_group(
+        &self,
+        g: &GroupRays,
+        len: usize,
+        stack: &mut Vec<(u32, u32, u32)>,
+        shared: &mut (u64, u64),
+        leaves: &mut (u64, u64),
+        leaf: &mut impl FnMut(usize, u32, u32) -> bool,
+        test: impl Fn(&WideNode<W>, &GroupRays, u32) -> ([u32; W], u32),
+    ) -> u32 {
+        let mut each = |mut m: u32, first: u32, count: u32| {
+            let mut hit = 0u32;
+            while m != 0 {
+                let i = m.trailing_zeros() as usize;
+                m &= m - 1;
+                if leaf(i, first, count) {
+                    hit |= 1 << i;
+                }
+            }
+            hit
+        };
+        self.occluded_group_by(g, len, stack, shared, leaves, &mut each, test)
+    }
+
+    /// Which rays of a group (`g`'s first `len`, at most [`GROUP`], in one
+    /// octant) hit anything: a bit each in the returned mask, set where
+    /// `leaf(rays, first, count)`, which tests the rays `rays` (a bit
+    /// each) against a leaf, returned the ray's bit.
     ///
     /// The rays walk the tree as one, each stack item a node or leaf with
     /// the mask of the rays that entered it: a node's boxes are tested
@@ -1060,16 +1091,19 @@ impl<const W: usize> WideBvh<W> {
     ///
     /// `stack` is scratch space, whatever it holds overwritten and grown
     /// where the walk needs more (kept by the caller for the next group);
-    /// `shared` counts on the node visits and the rays they took, for the
-    /// caller's choice of walk.
+    /// `shared` counts on the node visits and the rays they took, and
+    /// `leaves` on the leaf visits and theirs, for the caller's choice of
+    /// walk.
     #[inline(always)]
-    pub(crate) fn occluded_group(
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn occluded_group_by(
         &self,
         g: &GroupRays,
         len: usize,
         stack: &mut Vec<(u32, u32, u32)>,
         shared: &mut (u64, u64),
-        leaf: &mut impl FnMut(usize, u32, u32) -> bool,
+        leaves: &mut (u64, u64),
+        leaf: &mut impl FnMut(u32, u32, u32) -> u32,
         test: impl Fn(&WideNode<W>, &GroupRays, u32) -> ([u32; W], u32),
     ) -> u32 {
         assert!(len <= GROUP);
@@ -1089,18 +1123,14 @@ impl<const W: usize> WideBvh<W> {
         while top > 0 {
             top -= 1;
             let (child, count, mask) = items[top];
-            let mut m = mask & alive;
+            let m = mask & alive;
             if m == 0 {
                 continue;
             }
             if count > 0 {
-                while m != 0 {
-                    let i = m.trailing_zeros() as usize;
-                    m &= m - 1;
-                    if leaf(i, child, count) {
-                        alive &= !(1 << i);
-                    }
-                }
+                leaves.0 += 1;
+                leaves.1 += u64::from(m.count_ones());
+                alive &= !(leaf(m, child, count) & m);
                 if alive == 0 {
                     break;
                 }
@@ -2380,6 +2410,7 @@ mod tests {
                 &g,
                 rays.len(),
                 &mut stack,
+                &mut (0, 0),
                 &mut (0, 0),
                 &mut |i, first, count| {
                     assert_eq!(count, 1);
