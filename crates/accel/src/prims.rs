@@ -152,8 +152,8 @@ pub trait Primitives: Send + Sync {
     }
     /// [`Self::intersect_block_pre`] of each ray `i` in `rays` (a bit each,
     /// rays of a group: `ray(i)`, its constants `pre[i]`, its bound
-    /// `tmax(i)`; `classes[c]`, the group's rays of
-    /// [`BlockRay::axis_class`] `c`), against the block
+    /// `tmax(i)`; `classes[c]`, the group's rays of axis order `c`, which
+    /// read the same rows of a block), against the block
     /// `first..first + count`, each ray's mask and hits handed to
     /// `each(i, mask, hits)`. The same results. Triangles load the
     /// block's rows once for the rays that share an axis order; the
