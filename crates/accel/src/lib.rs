@@ -23,6 +23,7 @@ mod kdtree;
 #[cfg(all(target_arch = "aarch64", target_feature = "neon"))]
 mod neon;
 mod packet;
+mod pages;
 mod prims;
 mod scene;
 mod simd;

@@ -1,6 +1,7 @@
 //! What structures index: primitives with bounds and a ray test.
 
 use crate::packet::{self, Packet8, LANES};
+use crate::pages::{Pages, PagesMut};
 use crate::simd::{block_at, Avx2, BlockRay, GROUP, GROUP_SLOTS};
 use raymesh_geometry::{
     clip_triangle, intersect_sphere, intersect_triangle, Aabb, Ray, Sphere, Vec3,
@@ -478,8 +479,9 @@ pub struct Triangles {
     /// computed with, a float keeps its bits); one zeroed group follows the last, so that a
     /// block's loads past its lanes never read past the end (see
     /// [`crate::simd::block_at`]). One allocation, so that one bounds
-    /// check covers a block's loads.
-    groups: Vec<Group>,
+    /// check covers a block's loads. On huge pages where the system has
+    /// them (see [`crate::pages`]).
+    groups: Pages<Group>,
     len: usize,
 }
 
@@ -590,40 +592,38 @@ impl Triangles {
         /// Triangles a task fills at least: whole groups.
         const RUN: usize = 4096;
         const { assert!(RUN.is_multiple_of(GROUP_SLOTS)) };
-        // Collected in place, in parallel: `vec![group; n]` of a type of
-        // our own is filled element by element on the calling thread
-        // before the tasks start (only zeros of the standard types come
-        // from a zeroed allocation), a pass over the whole array that no
-        // other thread shares. The pig's gather: 0.114 -> 0.095 ms at one
-        // thread, 0.116 -> 0.096 ms at two.
-        let mut groups = Vec::with_capacity(len.div_ceil(GROUP_SLOTS) + 1);
-        (0..len.div_ceil(GROUP_SLOTS) + 1)
-            .into_par_iter()
-            .with_min_len(RUN / GROUP_SLOTS)
-            .map(|g| {
-                // A group's rows are filled in registers and stored whole:
-                // each coordinate written to its slot of the array took a
-                // bounds check and the slot's arithmetic (82 instructions
-                // a triangle on bunny00 by callgrind). The group past the
-                // last triangle (and a last group's unused lanes) stay
-                // zero.
-                let first = g * GROUP_SLOTS;
-                let n = GROUP_SLOTS.min(len.saturating_sub(first));
-                let mut rows = [[0.0f32; GROUP_SLOTS]; GROUP / GROUP_SLOTS];
-                for k in 0..n {
-                    ahead(first + k);
-                    let c = corners(first + k);
-                    for (r, row) in rows[..INDEX_ROW].iter_mut().enumerate() {
-                        row[k] = c[r / 3][r % 3];
-                    }
-                    rows[INDEX_ROW][k] = f32::from_bits(index(first + k));
+        // Made in parallel, each group written once, in place (see
+        // `PagesMut::from_fn_par`): `vec![group; n]` of a type of our own
+        // is filled element by element on the calling thread before the
+        // tasks start, a pass over the whole array that no other thread
+        // shares (the pig's gather took 0.114 ms at one thread, 0.116 at
+        // two, against 0.095 and 0.096 in parallel).
+        let groups = PagesMut::from_fn_par(len.div_ceil(GROUP_SLOTS) + 1, RUN / GROUP_SLOTS, |g| {
+            // A group's rows are filled in registers and stored whole:
+            // each coordinate written to its slot of the array took a
+            // bounds check and the slot's arithmetic (82 instructions
+            // a triangle on bunny00 by callgrind). The group past the
+            // last triangle (and a last group's unused lanes) stay
+            // zero.
+            let first = g * GROUP_SLOTS;
+            let n = GROUP_SLOTS.min(len.saturating_sub(first));
+            let mut rows = [[0.0f32; GROUP_SLOTS]; GROUP / GROUP_SLOTS];
+            for k in 0..n {
+                ahead(first + k);
+                let c = corners(first + k);
+                for (r, row) in rows[..INDEX_ROW].iter_mut().enumerate() {
+                    row[k] = c[r / 3][r % 3];
                 }
-                let mut group = Group([0.0; GROUP]);
-                group.0.copy_from_slice(rows.as_flattened());
-                group
-            })
-            .collect_into_vec(&mut groups);
-        Self { groups, len }
+                rows[INDEX_ROW][k] = f32::from_bits(index(first + k));
+            }
+            let mut group = Group([0.0; GROUP]);
+            group.0.copy_from_slice(rows.as_flattened());
+            group
+        });
+        Self {
+            groups: groups.into(),
+            len,
+        }
     }
 
     /// The corners of triangle `i`.
@@ -654,7 +654,7 @@ impl Triangles {
     /// Bytes of the rows.
     #[must_use]
     pub fn bytes(&self) -> usize {
-        std::mem::size_of_val(self.groups.as_slice())
+        std::mem::size_of_val(&*self.groups)
     }
 }
 
@@ -881,12 +881,14 @@ impl Primitives for Triangles {
                 .par_iter()
                 .map(|&i| data[slot_at(i as usize, r)])
                 .collect();
-            self.groups
-                .par_iter_mut()
-                .zip(row.par_chunks(GROUP_SLOTS))
-                .for_each(|(group, lanes)| {
-                    group.0[r * GROUP_SLOTS..][..lanes.len()].copy_from_slice(lanes);
-                });
+            self.groups.modify(|groups| {
+                groups
+                    .par_iter_mut()
+                    .zip(row.par_chunks(GROUP_SLOTS))
+                    .for_each(|(group, lanes)| {
+                        group.0[r * GROUP_SLOTS..][..lanes.len()].copy_from_slice(lanes);
+                    });
+            });
         }
         true
     }
@@ -1161,6 +1163,10 @@ mod tests {
                 .collect();
             for (at, &x) in rows.data().iter().enumerate() {
                 assert!(used.contains(&at) || x == 0.0, "n {n}: float {at} is {x}");
+            }
+            // The larger ones on a map (from 64 KiB in these tests).
+            if cfg!(target_os = "linux") {
+                assert_eq!(rows.groups.is_mapped(), n >= 4_096, "n {n}");
             }
             // The gather's prefetch hint takes any index, in range or not.
             for i in [n, n + 2 * GATHER_AHEAD, usize::MAX] {

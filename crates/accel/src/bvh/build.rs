@@ -7,6 +7,7 @@ mod spatial;
 pub use spatial::Clip;
 
 use super::{Bvh, Node, NodePair};
+use crate::pages::PagesMut;
 use crate::BuildConfig;
 use raymesh_geometry::{Aabb, Mat3A, Vec3, Vec3A, Vec4};
 use rayon::prelude::*;
@@ -63,7 +64,8 @@ const PAR_CHUNK: usize = 8 * 1024;
 /// zeroes the index's: read as a float, an index below 2^23 is a
 /// denormal, and arithmetic on denormals is slow (left in, it made a
 /// 2M-triangle build take 900-1060 ms instead of 770-820).
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
 struct PrimRef {
     lo: Vec4,
     hi: Vec4,
@@ -82,8 +84,14 @@ impl PrimRef {
     }
 
     /// The references of primitives `0..n`, primitive `i` with box
-    /// `bounds(i)`, made in parallel.
-    fn all(n: usize, bounds: &(dyn Fn(u32) -> Aabb + Sync)) -> Vec<Self> {
+    /// `bounds(i)`, made in parallel, in [`PagesMut`]: there are many, and
+    /// every one is written once (see [`crate::pages`]).
+    fn all(n: usize, bounds: &(dyn Fn(u32) -> Aabb + Sync)) -> PagesMut<Self> {
+        PagesMut::from_fn_par(n, 1, |i| Self::new(bounds(i as u32), i as u32))
+    }
+
+    /// [`Self::all`] as a vector, for builders that add references.
+    fn all_vec(n: usize, bounds: &(dyn Fn(u32) -> Aabb + Sync)) -> Vec<Self> {
         (0..n as u32)
             .into_par_iter()
             .map(|i| Self::new(bounds(i), i))
@@ -384,11 +392,11 @@ impl BvhBuilder {
         let prim_ids = refs.par_iter().map(PrimRef::id).collect();
         drop(refs);
         let empty = NodePair([Node::new(Aabb::EMPTY); 2]);
-        let mut pairs: Vec<NodePair> = (0..tree.pairs()).into_par_iter().map(|_| empty).collect();
+        let mut pairs = PagesMut::from_fn_par(tree.pairs(), 1, |_| empty);
         pairs[0].0[0] = place(tree, &mut pairs[1..], 1);
         drop(slots);
         Bvh {
-            pairs,
+            pairs: pairs.into(),
             prim_ids,
             depth,
             parts: false,

@@ -20,6 +20,7 @@ pub use wide::{BoxRay, Bvh4, Bvh8, Node4, Node8, WideBvh, WideNode};
 pub(crate) use wide::{GroupEntry, GroupLeaf, GroupRays, GROUP, SMALL_TREE_BYTES};
 
 use crate::packet::{self, Packet8, PacketLeaf, LANES};
+use crate::pages::Pages;
 use crate::prims::BLOCK;
 use crate::{simd, test_each, AccelStats, Leaf, RayCounter};
 use raymesh_geometry::{
@@ -73,7 +74,7 @@ const _: () = assert!(std::mem::size_of::<Node>() == 32);
 /// Two sibling nodes in one 64-byte cache line: a traversal that tests
 /// both children of a node reads one line. The root shares its pair with
 /// an unused node.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 #[repr(C, align(64))]
 pub(crate) struct NodePair(pub(crate) [Node; 2]);
 
@@ -153,7 +154,8 @@ impl PlaneRay {
 #[derive(Clone, Debug, Default)]
 pub struct Bvh {
     /// Node `i` is `pairs[i / 2].0[i % 2]`; node 0 is the root, node 1 unused.
-    pairs: Vec<NodePair>,
+    /// On huge pages where the system has them ([`crate::pages`]).
+    pairs: Pages<NodePair>,
     /// Leaf slot → primitive; empty once the owner has reordered its
     /// primitives to match (then slot `k` is primitive `k`).
     prim_ids: Vec<u32>,

@@ -320,7 +320,7 @@ impl Tree {
             pairs[(at >> 1) as usize].0[(at & 1) as usize] = node;
         }
         Bvh {
-            pairs,
+            pairs: pairs.into(),
             prim_ids,
             depth: self.depth() as u32,
             parts,

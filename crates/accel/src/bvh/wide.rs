@@ -2931,7 +2931,8 @@ mod tests {
                 NodePair([node(flat.union(unit), 2, 0), Node::new(Aabb::EMPTY)]),
                 NodePair([node(flat, 0, 1), node(unit, 4, 0)]),
                 NodePair([node(unit, 1, 8), node(unit, 9, 8)]),
-            ],
+            ]
+            .into(),
             prim_ids: (0..17).collect(),
             depth: 3,
             parts: false,

@@ -148,7 +148,8 @@ impl BvhBuilder {
         // Extra references, within what `u32` slots can number.
         let room = (u32::MAX as usize - 1 - n) as f64;
         let budget = (n as f64 * f64::from(config.spatial_splits)).min(room) as usize;
-        let refs = PrimRef::all(n, bounds);
+        // A vector: spatial splits add references as they go.
+        let refs = PrimRef::all_vec(n, bounds);
         let ctx = Ctx::new(config, self, par_subtree);
         let root_area = ctx.bounds_pair(&refs).0.half_area();
         let build = Spatial {
@@ -162,7 +163,7 @@ impl BvhBuilder {
         let (mut prim_ids, mut depth) = (Vec::new(), 0);
         pairs[0].0[0] = flatten(tree, &mut pairs, &mut prim_ids, 1, &mut depth);
         Bvh {
-            pairs,
+            pairs: pairs.into(),
             prim_ids,
             depth: depth as u32,
             parts: true,
