@@ -30,10 +30,11 @@ const HUGE_PAGE: usize = 2 << 20;
 /// threshold. glibc maps allocations above it afresh each time, so a map
 /// of our own costs nothing more and gets huge pages; smaller ones it
 /// serves from memory it holds, already faulted in, which a build
-/// repeated in one process (as the benchmarks do) reuses: mapped from 8
-/// MiB, a 300K-triangle sphere's builds took 3–5% longer there
-/// (`raymesh-peers --peers embree`, three alternations), and from 2 MiB
-/// bunny00's 3%.
+/// repeated in one process (as the benchmarks do) reuses. Mapped from 8
+/// MiB, a 300K-triangle sphere's builds took 68.5–69.6 ms on one thread
+/// and 37.3–39.4 on two, against 66.7–67.1 and 34.9–36.8
+/// (`raymesh-peers --peers embree`, three alternations); mapped from 2
+/// MiB, bunny00's one-thread builds 17.6–17.9 ms against 16.8–17.3.
 #[cfg(all(target_os = "linux", not(test)))]
 const MAP_AT_LEAST: usize = 16 * HUGE_PAGE;
 
