@@ -169,55 +169,88 @@ impl<'a> Ctx<'a> {
 enum Subtree<'a> {
     /// Built on one thread, laid out as a whole tree is: node 0 is the
     /// root, node 1 unused, sibling pairs from 2 on, and child indices
-    /// point into this region.
-    Flat(Region<'a>),
+    /// point into `nodes` (kept in the build's [`NodePool`]); `depth` is
+    /// that of its deepest leaf (the whole tree's root at depth 1).
+    Flat { nodes: &'a [Node], depth: usize },
     /// A root whose two subtrees were built in parallel.
     Split(Node, Box<Subtree<'a>>, Box<Subtree<'a>>),
 }
 
-/// The node slots of a subtree built on one thread, filled from the front:
-/// a region of the build's one node buffer. A subtree over `n` primitives
-/// gets `2n` slots, as many as its nodes can be (its root, the unused slot
-/// beside it, and a pair per split, of which there are at most `n - 1`),
-/// and its two halves split its region as they split its primitives.
-///
-/// One buffer, not a vector per subtree: freed at once, it goes back to
-/// the system, where thousands of small vectors stayed in the allocator's
-/// arenas as free memory the process still holds (a 10M-triangle render
-/// then peaked 100 MB higher, while it gathered the triangle rows).
-struct Region<'a> {
-    nodes: &'a mut [Node],
-    len: usize,
+/// The nodes of a subtree being built on one thread, filled from the
+/// front, in a vector of its own that the allocator reuses from one
+/// subtree to the next (a few hundred kilobytes at most, warm in the
+/// cache); once built they are copied to the [`NodePool`].
+struct Region {
+    nodes: Vec<Node>,
     /// Depth of the deepest leaf written (the root at depth 1).
     depth: usize,
 }
 
-impl Region<'_> {
+impl Region {
+    /// Room for the nodes of a subtree over `n` primitives: its root, the
+    /// unused slot beside it, and a pair per split, of which there are at
+    /// most `n - 1`.
+    fn for_prims(n: usize) -> Self {
+        Self {
+            nodes: Vec::with_capacity(2 * n.max(1)),
+            depth: 0,
+        }
+    }
+
     fn push(&mut self, n: Node) {
-        self.nodes[self.len] = n;
-        self.len += 1;
+        self.nodes.push(n);
     }
 
     fn len(&self) -> usize {
-        self.len
-    }
-
-    /// The nodes written so far.
-    fn nodes(&self) -> &[Node] {
-        &self.nodes[..self.len]
+        self.nodes.len()
     }
 }
 
-impl std::ops::Index<usize> for Region<'_> {
+impl std::ops::Index<usize> for Region {
     type Output = Node;
     fn index(&self, i: usize) -> &Node {
-        &self.nodes()[i]
+        &self.nodes[i]
     }
 }
 
-impl std::ops::IndexMut<usize> for Region<'_> {
+impl std::ops::IndexMut<usize> for Region {
     fn index_mut(&mut self, i: usize) -> &mut Node {
-        &mut self.nodes[..self.len][i]
+        &mut self.nodes[i]
+    }
+}
+
+/// The build's one buffer for the nodes of its one-thread subtrees, each
+/// copied in whole as soon as it is built, one after another, wherever
+/// the threads' timing puts it ([`place`] reads them in the tree's order).
+///
+/// One buffer, not a vector kept per subtree: freed at once, it goes back
+/// to the system, where thousands of small vectors stayed in the
+/// allocator's arenas as free memory the process still holds (a
+/// 10M-triangle render then peaked 100 MB higher, while it gathered the
+/// triangle rows). Filled densely from the front, so that a large one
+/// sits on huge pages ([`PagesMut`]) with no more of it resident than the
+/// nodes written: when each subtree had a fixed share of it (two slots a
+/// primitive, about half of them written), huge pages made every slot
+/// resident and a 10M-triangle build peaked at 1,204 MiB against 741.
+struct NodePool<'a>(std::sync::Mutex<&'a mut [Node]>);
+
+impl<'a> NodePool<'a> {
+    /// Copies `region`'s nodes to the buffer's next free slots.
+    fn keep(&self, region: &Region) -> Subtree<'a> {
+        let mine = {
+            let mut free = self
+                .0
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
+            let (mine, rest) = std::mem::take(&mut *free).split_at_mut(region.len());
+            *free = rest;
+            mine
+        };
+        mine.copy_from_slice(&region.nodes);
+        Subtree::Flat {
+            nodes: mine,
+            depth: region.depth,
+        }
     }
 }
 
@@ -373,8 +406,10 @@ impl BvhBuilder {
         let mut refs = PrimRef::all(n, bounds);
         let ctx = Ctx::new(config, self, par_subtree);
         let (bounds, cbounds) = ctx.bounds_pair(&refs);
-        // Zeroed by the system, so only the slots written become resident.
-        let mut slots: Vec<Node> = bytemuck::zeroed_vec(2 * n);
+        // Zeroed by the system, so only the slots written become resident
+        // (at most two a primitive are).
+        let mut slots = PagesMut::<Node>::zeroed(2 * n);
+        let pool = NodePool(std::sync::Mutex::new(&mut slots));
         let mut orders = if self == Self::SweepSah {
             Sorted::all(&refs)
         } else {
@@ -384,7 +419,7 @@ impl BvhBuilder {
             let [x, y, z] = &mut orders;
             Sorted([x.as_mut_slice(), y, z])
         });
-        let tree = ctx.subtree(&mut refs, sorted, &mut slots, 0, 1, bounds, cbounds);
+        let tree = ctx.subtree(&mut refs, sorted, &pool, 0, 1, bounds, cbounds);
         drop(orders);
         // The references (32 bytes a primitive) go before the tree is
         // flattened, so that they never coexist with both of its copies.
@@ -408,7 +443,7 @@ impl Subtree<'_> {
     /// Sibling pairs of the whole tree once placed, the root's included.
     fn pairs(&self) -> usize {
         match self {
-            Self::Flat(nodes) => nodes.len() / 2,
+            Self::Flat { nodes, .. } => nodes.len() / 2,
             Self::Split(_, l, r) => l.pairs() + r.pairs(),
         }
     }
@@ -416,7 +451,7 @@ impl Subtree<'_> {
     /// Depth of the deepest leaf (the whole tree's root at depth 1).
     fn depth(&self) -> usize {
         match self {
-            Self::Flat(nodes) => nodes.depth,
+            Self::Flat { depth, .. } => *depth,
             Self::Split(_, l, r) => l.depth().max(r.depth()),
         }
     }
@@ -430,8 +465,7 @@ impl Subtree<'_> {
 /// placed in parallel, each into its own part of `out`.
 fn place(tree: Subtree<'_>, out: &mut [NodePair], base: u32) -> Node {
     match tree {
-        Subtree::Flat(region) => {
-            let nodes = region.nodes();
+        Subtree::Flat { nodes, .. } => {
             // Pairs start at node 2 in `nodes` and at node `2 * base` in the array.
             let shift = |mut n: Node| {
                 if !n.is_leaf() {
@@ -510,19 +544,14 @@ impl Ctx<'_> {
         &self,
         ids: &mut [PrimRef],
         mut sorted: Option<Sorted<'_>>,
-        slots: &'s mut [Node],
+        pool: &NodePool<'s>,
         offset: u32,
         depth: usize,
         bounds: Aabb,
         cbounds: Aabb,
     ) -> Subtree<'s> {
-        debug_assert!(slots.len() >= 2 * ids.len());
-        let mut nodes = Region {
-            nodes: slots,
-            len: 0,
-            depth: 0,
-        };
         if ids.len() < self.par_subtree {
+            let mut nodes = Region::for_prims(ids.len());
             nodes.push(Node::new(Aabb::EMPTY));
             nodes.push(Node::new(Aabb::EMPTY));
             self.build(
@@ -536,7 +565,7 @@ impl Ctx<'_> {
                 bounds,
                 cbounds,
             );
-            return Subtree::Flat(nodes);
+            return pool.keep(&nodes);
         }
         let mut root = Node::new(bounds);
         match self.split(
@@ -550,25 +579,25 @@ impl Ctx<'_> {
             None => {
                 root.index = offset;
                 root.count = ids.len() as u32;
+                let mut nodes = Region::for_prims(1);
                 nodes.push(root);
                 nodes.push(Node::new(Aabb::EMPTY));
                 nodes.depth = depth;
-                Subtree::Flat(nodes)
+                pool.keep(&nodes)
             }
             Some(mid) => {
                 let (left, right) = ids.split_at_mut(mid);
                 let (ls, rs) = Sorted::split_at(sorted, mid);
-                let (lslots, rslots) = nodes.nodes.split_at_mut(2 * mid);
                 // Each side bounds its own primitives, on its own task.
                 let (l, r) = rayon::join(
                     || {
                         let (b, c) = self.bounds_pair(left);
-                        self.subtree(left, ls, lslots, offset, depth + 1, b, c)
+                        self.subtree(left, ls, pool, offset, depth + 1, b, c)
                     },
                     || {
                         let (b, c) = self.bounds_pair(right);
                         let o = offset + mid as u32;
-                        self.subtree(right, rs, rslots, o, depth + 1, b, c)
+                        self.subtree(right, rs, pool, o, depth + 1, b, c)
                     },
                 );
                 Subtree::Split(root, Box::new(l), Box::new(r))
@@ -617,7 +646,7 @@ impl Ctx<'_> {
     #[allow(clippy::too_many_arguments)]
     fn build(
         &self,
-        nodes: &mut Region<'_>,
+        nodes: &mut Region,
         bins: &mut Bins,
         node: usize,
         ids: &mut [PrimRef],
