@@ -229,9 +229,15 @@ impl<T: Pod> Default for Pages<T> {
 
 impl<T: Pod> Clone for Pages<T> {
     fn clone(&self) -> Self {
-        let mut p = PagesMut::zeroed(self.len());
-        p.copy_from_slice(self);
-        p.into()
+        // A map comes zeroed from the system; a `Vec` is copied in one
+        // pass (zeroed first, it would pass over reused memory twice).
+        #[cfg(target_os = "linux")]
+        if let Some(store) = PagesMut::mapped(self.len()) {
+            let mut p = PagesMut { store };
+            p.copy_from_slice(self);
+            return p.into();
+        }
+        self.to_vec().into()
     }
 }
 
