@@ -9,7 +9,7 @@ use crate::{
     packet::{Packet8, PacketLeaf, LANES},
     prims::BLOCK,
     Accel, AccelKind, AccelStats, Avx2, BlockHits, BuildConfig, Bvh, Bvh4, Bvh8, CountStats, Grid,
-    NoStats, PrimHit, Primitives, RayCounter, TriangleMesh, Triangles,
+    KdTree, NoStats, PrimHit, Primitives, RayCounter, TriangleMesh, Triangles,
 };
 use raymesh_geometry::{Aabb, Ray, Rays8, Vec3};
 use rayon::prelude::*;
@@ -164,7 +164,12 @@ impl<P: Primitives> Scene<P> {
                     .par_iter()
                     .copied()
                     .reduce(|| Aabb::EMPTY, Aabb::union);
-                (Accel::build(kind, &boxes, config), b)
+                let accel = if kind == AccelKind::KdTree {
+                    Accel::KdTree(KdTree::build_clipped(&boxes, &clip, config))
+                } else {
+                    Accel::build(kind, &boxes, config)
+                };
+                (accel, b)
             }
         };
         let mut prims = prims;
