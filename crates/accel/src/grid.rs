@@ -1,7 +1,7 @@
 //! Uniform grid traversed by 3D-DDA (Amanatides & Woo, "A fast voxel
 //! traversal algorithm for ray tracing", 1987).
 
-use crate::{each_id, AccelStats, BuildConfig, Leaf, RayCounter, BLOCK};
+use crate::{each_id, AccelStats, BuildConfig, Clip, Leaf, RayCounter, BLOCK};
 use raymesh_geometry::{cull_bound, Aabb, Ray, Vec3};
 use rayon::prelude::*;
 use std::cell::RefCell;
@@ -12,7 +12,9 @@ use std::sync::atomic::{AtomicU32, Ordering};
 const MAX_CELLS: usize = 1 << 26;
 
 /// A uniform grid over the primitives' bounds. Each cell lists the
-/// primitives whose (slightly padded) box overlaps it, in CSR form.
+/// primitives whose (slightly padded) box overlaps it, in CSR form; or,
+/// built with a [`Clip`] ([`Self::build_clipped`]), those whose shape's
+/// part in the cell's slab does.
 ///
 /// A ray steps through cells in order and stops at the first cell whose
 /// exit lies beyond the best hit: any closer hit would lie in a cell already
@@ -31,6 +33,10 @@ pub struct Grid {
     len: usize,
 }
 
+/// The fewest cells a primitive's box must span for a clipped build
+/// ([`Grid::build_clipped`]) to clip it.
+const CLIP_MIN_CELLS: u64 = 8;
+
 thread_local! {
     /// Mailbox: the ray stamp each primitive was last tested with.
     static MAILBOX: RefCell<(u32, Vec<u32>)> = const { RefCell::new((0, Vec::new())) };
@@ -40,7 +46,17 @@ impl Grid {
     /// Builds a grid of about `density × N` cells shaped like the bounds.
     #[must_use]
     pub fn build(boxes: &[Aabb], config: &BuildConfig) -> Self {
-        Self::build_by(boxes.len(), &|i| boxes[i as usize], config).0
+        Self::build_by(boxes.len(), &|i| boxes[i as usize], None, config).0
+    }
+
+    /// [`Self::build`], a primitive listed only in the cells its shape
+    /// reaches, not every cell its box does: `clip` cuts it to each slab
+    /// of cells it spans (see [`Clip`]; for triangles,
+    /// [`raymesh_geometry::clip_triangle`]). A diagonal triangle's box
+    /// spans cells it never touches.
+    #[must_use]
+    pub fn build_clipped(boxes: &[Aabb], clip: &Clip<'_>, config: &BuildConfig) -> Self {
+        Self::build_by(boxes.len(), &|i| boxes[i as usize], Some(clip), config).0
     }
 
     /// [`Self::build`] over `n` primitives whose boxes `box_of(i)` gives,
@@ -50,6 +66,7 @@ impl Grid {
     pub(crate) fn build_by(
         n: usize,
         box_of: &(dyn Fn(u32) -> Aabb + Sync),
+        clip: Option<&Clip<'_>>,
         config: &BuildConfig,
     ) -> (Self, Aabb) {
         assert!(
@@ -61,7 +78,7 @@ impl Grid {
             .into_par_iter()
             .map(box_of)
             .reduce(|| Aabb::EMPTY, Aabb::union);
-        let grid = Self::build_in(n, box_of, union, config);
+        let grid = Self::build_in(n, box_of, clip, union, config);
         (grid, union)
     }
 
@@ -69,6 +86,7 @@ impl Grid {
     fn build_in(
         n: usize,
         box_of: &(dyn Fn(u32) -> Aabb + Sync),
+        clip: Option<&Clip<'_>>,
         bounds: Aabb,
         config: &BuildConfig,
     ) -> Self {
@@ -126,7 +144,7 @@ impl Grid {
             .map(|_| AtomicU32::new(0))
             .collect();
         (0..n as u32).into_par_iter().for_each(|i| {
-            g.for_cells(&box_of(i), |c| {
+            g.for_cells_of(i, &box_of(i), clip, |c| {
                 counts[c].fetch_add(1, Ordering::Relaxed);
             });
         });
@@ -145,7 +163,7 @@ impl Grid {
             .map(|_| AtomicU32::new(0))
             .collect();
         (0..n as u32).into_par_iter().for_each(|i| {
-            g.for_cells(&box_of(i), |c| {
+            g.for_cells_of(i, &box_of(i), clip, |c| {
                 let k = fill[c].fetch_add(1, Ordering::Relaxed);
                 prims[k as usize].store(i, Ordering::Relaxed);
             });
@@ -214,6 +232,72 @@ impl Grid {
                 }
             }
         }
+    }
+
+    /// [`Self::for_cells`] of primitive `i`'s box `b`, or with `clip`, of
+    /// the cells its shape's parts reach: for each slab of cells along z
+    /// the box spans, the part inside the slab (padded by the same 1/1000
+    /// of a cell as the box), and within it each slab along y, whose
+    /// part's box gives the cells along x. Conservative as `clip` is: a
+    /// point of the primitive lies in the part of every padded slab that
+    /// holds it, so the primitive is listed in every cell the box test
+    /// would list it in for that point.
+    #[inline]
+    fn for_cells_of(&self, i: u32, b: &Aabb, clip: Option<&Clip<'_>>, mut f: impl FnMut(usize)) {
+        let (lo, hi) = self.cell_range(b);
+        // A box one cell thick on two axes lies in a row of cells, each of
+        // which the primitive (convex, as a triangle is) reaches: nothing
+        // to clip away. A box of fewer than [`CLIP_MIN_CELLS`] cells is
+        // not worth clipping either.
+        let spanned = (0..3).filter(|&a| lo[a] != hi[a]).count();
+        let cells: u64 = (0..3).map(|a| u64::from(hi[a] - lo[a]) + 1).product();
+        let Some(clip) = clip.filter(|_| spanned >= 2 && cells >= CLIP_MIN_CELLS) else {
+            return self.for_cells(b, f);
+        };
+        for z in lo[2]..=hi[2] {
+            let zb = self.slab_part(i, *b, clip, 2, z);
+            if zb.is_empty() {
+                continue;
+            }
+            let (zlo, zhi) = self.cell_range(&zb);
+            let (y0, y1) = (zlo[1].max(lo[1]), zhi[1].min(hi[1]));
+            let (x0, x1) = (zlo[0].max(lo[0]), zhi[0].min(hi[0]));
+            for y in y0..=y1 {
+                // The part in a slab is convex: one cell thick along x or
+                // y, it reaches every cell of its box.
+                let (xa, xb) = if y0 == y1 || x0 == x1 {
+                    (x0, x1)
+                } else {
+                    let yb = self.slab_part(i, zb, clip, 1, y);
+                    if yb.is_empty() {
+                        continue;
+                    }
+                    let (ylo, yhi) = self.cell_range(&yb);
+                    (ylo[0].max(x0), yhi[0].min(x1))
+                };
+                for x in xa..=xb {
+                    f(self.cell_index([x, y, z]));
+                }
+            }
+        }
+    }
+
+    /// The box of primitive `i`'s part inside `within` and inside the
+    /// slab of cells `k` along `axis`, padded by 1/1000 of a cell on both
+    /// sides ([`Self::cell_range`]'s padding); clipped only at a plane
+    /// that cuts `within`.
+    fn slab_part(&self, i: u32, within: Aabb, clip: &Clip<'_>, axis: usize, k: u32) -> Aabb {
+        let pad = self.cell_size[axis] * 1e-3;
+        let start = self.bounds.min[axis] + k as f32 * self.cell_size[axis];
+        let (a, b) = (start - pad, start + self.cell_size[axis] + pad);
+        let mut w = within;
+        if w.min[axis] < a {
+            w = clip(i, w, axis, a).1;
+        }
+        if !w.is_empty() && w.max[axis] > b {
+            w = clip(i, w, axis, b).0;
+        }
+        w
     }
 
     /// Inclusive cell range a box overlaps, padded by 1/1000 of a cell.
@@ -387,6 +471,117 @@ impl Grid {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Diagonal slivers across the grid: listed by their boxes, each fills
+    /// a cube of cells; clipped, only the cells along it, and each cell a
+    /// sliver passes through or comes within the padding of still lists it
+    /// (the cells of points sampled on it, and moved by half the padding),
+    /// in a build that is the same on any number of threads.
+    #[test]
+    fn clipped_slivers_fill_only_their_cells() {
+        let tris: Vec<[Vec3; 3]> = (0..300)
+            .map(|i| {
+                let x = (i % 20) as f32;
+                let z = (i / 20) as f32;
+                [
+                    Vec3::new(x, 0.0, z),
+                    Vec3::new(x + 0.05, 0.0, z),
+                    Vec3::new(x + 9.0, 9.0, z + 9.0),
+                ]
+            })
+            .collect();
+        let boxes: Vec<Aabb> = tris.iter().map(|t| Aabb::from_points(*t)).collect();
+        let config = BuildConfig::default();
+        let clip = |i: u32, within, axis, pos| {
+            raymesh_geometry::clip_triangle(tris[i as usize], within, axis, pos)
+        };
+        let by_box = Grid::build(&boxes, &config);
+        let clipped = Grid::build_clipped(&boxes, &clip, &config);
+        assert_eq!(by_box.res, clipped.res);
+        assert!(
+            4 * clipped.cell_prims.len() < by_box.cell_prims.len(),
+            "{} references clipped against {} by box",
+            clipped.cell_prims.len(),
+            by_box.cell_prims.len()
+        );
+        for (i, t) in tris.iter().enumerate() {
+            for k in 0..=64 {
+                let (a, b) = (k as f32 / 64.0, (k % 7) as f32 / 7.0);
+                let p = t[0] + (t[2] - t[0]) * a + (t[1] - t[0]) * (b * (1.0 - a));
+                // As with boxes, a cell lists what comes within 1/1000 of
+                // a cell of it: the cells of points moved half that way
+                // list the sliver too.
+                for (axis, side) in [(0, 0.0), (0, 1.0), (0, -1.0), (1, 1.0), (1, -1.0)]
+                    .into_iter()
+                    .chain([(2, 1.0), (2, -1.0)])
+                {
+                    let mut q = p;
+                    q[axis] += side * 5e-4 * clipped.cell_size[axis];
+                    let c = clipped.cell_index([0, 1, 2].map(|a| clipped.cell_of(q, a)));
+                    let list = &clipped.cell_prims
+                        [clipped.cell_starts[c] as usize..clipped.cell_starts[c + 1] as usize];
+                    assert!(
+                        list.contains(&(i as u32)),
+                        "sliver {i} missing from the cell of {q}"
+                    );
+                }
+            }
+        }
+        for threads in [1, 3] {
+            let pool = crate::test_util::pool(threads);
+            let again = pool.install(|| Grid::build_clipped(&boxes, &clip, &config));
+            assert_eq!(again.cell_starts, clipped.cell_starts);
+            assert_eq!(again.cell_prims, clipped.cell_prims, "{threads} threads");
+        }
+    }
+
+    /// Triangles whose corner stops just short of a cell boundary (a third
+    /// of the padding), from below and from above, are listed in the cells
+    /// beyond it, clipped as by box: clipping keeps the 1/1000 of a cell
+    /// that rounding in a hit point may need.
+    #[test]
+    fn clipped_cells_keep_the_padding() {
+        let mut tris: Vec<[Vec3; 3]> = (0..64)
+            .map(|i| {
+                let p = Vec3::new((i % 4) as f32, (i / 4 % 4) as f32, (i / 16) as f32) * 3.0;
+                [p, p + Vec3::X, p + Vec3::Y]
+            })
+            .collect();
+        let boxes =
+            |t: &[[Vec3; 3]]| -> Vec<Aabb> { t.iter().map(|t| Aabb::from_points(*t)).collect() };
+        let config = BuildConfig::default();
+        let g = Grid::build(&boxes(&tris), &config);
+        assert!(g.res.iter().all(|&r| r >= 5), "{:?} cells", g.res);
+        let cs = g.cell_size;
+        // Diagonal triangles (spanning many cells, so clipped) ending a
+        // third of the padding short of a corner of cells inside the grid.
+        let probes = [(3.0, 1.0), (2.0, -1.0)].map(|(k, side)| {
+            let apex = g.bounds.min + cs * k - cs * 3e-4 * side;
+            let back = apex - cs * 2.5 * side;
+            ([back, back + Vec3::new(0.01, 0.0, 0.0), apex], side)
+        });
+        for (i, (t, _)) in probes.iter().enumerate() {
+            tris[i] = *t;
+        }
+        let b = boxes(&tris);
+        let clip = |i: u32, within, axis, pos| {
+            raymesh_geometry::clip_triangle(tris[i as usize], within, axis, pos)
+        };
+        let clipped = Grid::build_clipped(&b, &clip, &config);
+        assert_eq!((clipped.bounds, clipped.res), (g.bounds, g.res));
+        for (i, (t, side)) in probes.iter().enumerate() {
+            for step in [Vec3::X, Vec3::Y, Vec3::Z, Vec3::ONE] {
+                let q = t[2] + cs * step * 6e-4 * *side;
+                let c = clipped.cell_index([0, 1, 2].map(|a| clipped.cell_of(q, a)));
+                let list = &clipped.cell_prims
+                    [clipped.cell_starts[c] as usize..clipped.cell_starts[c + 1] as usize];
+                assert!(
+                    list.contains(&(i as u32)),
+                    "triangle {i} missing from the cell of {q}"
+                );
+            }
+        }
+    }
 
     /// The parallel passes give the cell lists of a one-thread build:
     /// each cell's primitives in increasing order, whatever the threads.

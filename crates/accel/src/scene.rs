@@ -152,7 +152,7 @@ impl<P: Primitives> Scene<P> {
             }
             // The grid asks for the boxes in each pass instead of keeping them.
             None if kind == AccelKind::Grid => {
-                let (grid, b) = Grid::build_by(n, &|i| prims.bounds(i), config);
+                let (grid, b) = Grid::build_by(n, &|i| prims.bounds(i), Some(&clip), config);
                 (Accel::Grid(grid), b)
             }
             None => {
