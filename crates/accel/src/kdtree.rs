@@ -6,7 +6,7 @@
 //! splits"), and traversed front to back (pbrt-v4's `KdTreeAggregate`).
 
 use crate::{each_id, AccelStats, BuildConfig, Clip, Leaf, RayCounter};
-use raymesh_geometry::{cull_bound, Aabb, Ray, Vec3};
+use raymesh_geometry::{cull_bound, Aabb, Ray, Vec3, Vec3A};
 use rayon::prelude::*;
 use std::hint::select_unpredictable;
 use std::ops::Range;
@@ -581,17 +581,17 @@ impl Builder<'_> {
             v.clear();
             v.resize(nb + 1, [0; 3]);
         }
-        // Clamped in floats (`max` drops a NaN), then truncated: the same
-        // bins as a saturating cast, without its fix-ups (as the BVH's
-        // binning does).
-        let last = Vec3::splat(nb as f32);
+        // Clamped in floats (a NaN to 0), then truncated, the three axes
+        // at once: the BVH builders' binning (`truncate3`).
+        let simd = crate::simd::simd_enabled();
+        let (origin, scale) = (Vec3A::from(origin), Vec3A::from(scale));
+        let bin =
+            |p: Vec3| crate::simd::truncate3((Vec3A::from(p) - origin) * scale, nb as f32, simd);
         for r in ids {
-            let b = r.b;
-            let lo = ((b.min - origin) * scale).max(Vec3::ZERO).min(last);
-            let hi = ((b.max - origin) * scale).max(Vec3::ZERO).min(last);
+            let (lo, hi) = (bin(r.b.min), bin(r.b.max));
             for axis in 0..3 {
-                mins[lo[axis] as i32 as usize][axis] += 1;
-                maxs[hi[axis] as i32 as usize][axis] += 1;
+                mins[(lo >> (8 * axis) & 0xff) as usize][axis] += 1;
+                maxs[(hi >> (8 * axis) & 0xff) as usize][axis] += 1;
             }
         }
     }
@@ -612,7 +612,8 @@ impl Builder<'_> {
         bins: &mut BinCounts,
     ) -> Option<(f32, usize, f32)> {
         // Small nodes need few candidate planes: twice their size is plenty.
-        let nb = self.config.bins.min(2 * ids.len()).clamp(2, 256);
+        // At most 255: a box's bin on each axis is packed into a byte.
+        let nb = self.config.bins.min(2 * ids.len()).clamp(2, 255);
         let ext = bounds.extent();
         let area = bounds.half_area();
         if !(area > 0.0) {
