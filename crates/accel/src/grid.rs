@@ -477,6 +477,12 @@ impl Grid {
 mod tests {
     use super::*;
 
+    /// Whether the cell of point `q` lists primitive `i`.
+    fn lists(g: &Grid, q: Vec3, i: u32) -> bool {
+        let c = g.cell_index([0, 1, 2].map(|a| g.cell_of(q, a)));
+        g.cell_prims[g.cell_starts[c] as usize..g.cell_starts[c + 1] as usize].contains(&i)
+    }
+
     /// Diagonal slivers across the grid: listed by their boxes, each fills
     /// a cube of cells; clipped, only the cells along it, and each cell a
     /// sliver passes through or comes within the padding of still lists it
@@ -516,17 +522,19 @@ mod tests {
                 // As with boxes, a cell lists what comes within 1/1000 of
                 // a cell of it: the cells of points moved half that way
                 // list the sliver too.
-                for (axis, side) in [(0, 0.0), (0, 1.0), (0, -1.0), (1, 1.0), (1, -1.0)]
-                    .into_iter()
-                    .chain([(2, 1.0), (2, -1.0)])
-                {
+                for (axis, side) in [
+                    (0, 0.0),
+                    (0, 1.0),
+                    (0, -1.0),
+                    (1, 1.0),
+                    (1, -1.0),
+                    (2, 1.0),
+                    (2, -1.0),
+                ] {
                     let mut q = p;
                     q[axis] += side * 5e-4 * clipped.cell_size[axis];
-                    let c = clipped.cell_index([0, 1, 2].map(|a| clipped.cell_of(q, a)));
-                    let list = &clipped.cell_prims
-                        [clipped.cell_starts[c] as usize..clipped.cell_starts[c + 1] as usize];
                     assert!(
-                        list.contains(&(i as u32)),
+                        lists(&clipped, q, i as u32),
                         "sliver {i} missing from the cell of {q}"
                     );
                 }
@@ -577,11 +585,8 @@ mod tests {
         for (i, (t, side)) in probes.iter().enumerate() {
             for step in [Vec3::X, Vec3::Y, Vec3::Z, Vec3::ONE] {
                 let q = t[2] + cs * step * 6e-4 * *side;
-                let c = clipped.cell_index([0, 1, 2].map(|a| clipped.cell_of(q, a)));
-                let list = &clipped.cell_prims
-                    [clipped.cell_starts[c] as usize..clipped.cell_starts[c + 1] as usize];
                 assert!(
-                    list.contains(&(i as u32)),
+                    lists(&clipped, q, i as u32),
                     "triangle {i} missing from the cell of {q}"
                 );
             }
