@@ -35,14 +35,26 @@ struct KdNode {
     b: u32,
 }
 
+/// The most nodes, and references in one leaf, a node's 30 bits can name.
+/// A tree past them (hundreds of millions of triangles) stops with a
+/// message rather than wrapping into wrong children.
+const MAX_INDEX: u32 = 1 << 30;
+/// What a tree of more references than a `u32` offset reaches says.
+const TOO_MANY_REFS: &str = "a k-d tree of 2^32 references or more";
+
 impl KdNode {
     fn leaf(offset: u32, count: u32) -> Self {
+        assert!(
+            count < MAX_INDEX,
+            "a k-d tree leaf of 2^30 references or more"
+        );
         Self {
             a: offset,
             b: (count << 2) | 3,
         }
     }
     fn interior(axis: usize, split: f32, above: u32) -> Self {
+        assert!(above < MAX_INDEX, "a k-d tree of 2^30 nodes or more");
         Self {
             a: split.to_bits(),
             b: (above << 2) | axis as u32,
@@ -174,13 +186,14 @@ fn place(tree: Subtree, out: &mut Local) {
             out.nodes.extend(local.nodes.into_iter().map(|n| {
                 if n.is_leaf() {
                     KdNode {
-                        a: n.a + prim_base,
+                        a: n.a.checked_add(prim_base).expect(TOO_MANY_REFS),
                         b: n.b,
                     }
                 } else if n.upper() == 0 {
                     n
                 } else {
-                    KdNode::interior(n.axis(), n.split(), n.upper() + node_base)
+                    let above = n.upper().checked_add(node_base).unwrap_or(MAX_INDEX);
+                    KdNode::interior(n.axis(), n.split(), above)
                 }
             }));
             out.prims.extend_from_slice(&local.prims);
@@ -567,8 +580,8 @@ impl Builder<'_> {
     }
 
     fn make_leaf(out: &mut Local, ids: &[Ref]) {
-        out.nodes
-            .push(KdNode::leaf(out.prims.len() as u32, ids.len() as u32));
+        let offset = u32::try_from(out.prims.len()).expect(TOO_MANY_REFS);
+        out.nodes.push(KdNode::leaf(offset, ids.len() as u32));
         out.prims.extend(ids.iter().map(|r| r.id));
     }
 
