@@ -225,11 +225,11 @@ impl Grid {
         f.max(0.0).min((self.res[a] - 1) as f32) as i32 as u32
     }
 
-    /// Calls `f` with the index of every cell a box overlaps (generic, so
-    /// that the build's passes inline it).
+    /// Calls `f` with the index of every cell of the inclusive range
+    /// `lo..=hi` ([`Self::cell_range`]; generic, so that the build's
+    /// passes inline it).
     #[inline]
-    fn for_cells(&self, b: &Aabb, mut f: impl FnMut(usize)) {
-        let (lo, hi) = self.cell_range(b);
+    fn for_cells(&self, (lo, hi): ([u32; 3], [u32; 3]), mut f: impl FnMut(usize)) {
         for z in lo[2]..=hi[2] {
             for y in lo[1]..=hi[1] {
                 for x in lo[0]..=hi[0] {
@@ -239,9 +239,9 @@ impl Grid {
         }
     }
 
-    /// [`Self::for_cells`] of primitive `i`'s box `b`, or with `clip`, of
-    /// the cells its shape's parts reach: for each slab of cells along z
-    /// the box spans, the part inside the slab (padded by the same 1/1000
+    /// [`Self::for_cells`] of the cells primitive `i`'s box `b` overlaps,
+    /// or with `clip`, of the cells its shape's parts reach: for each slab
+    /// of cells along z the box spans, the part inside the slab (padded by the same 1/1000
     /// of a cell as the box), and within it each slab along y, whose
     /// part's box gives the cells along x. Conservative as `clip` is: a
     /// point of the primitive lies in the part of every padded slab that
@@ -257,7 +257,7 @@ impl Grid {
         let spanned = (0..3).filter(|&a| lo[a] != hi[a]).count();
         let cells: u64 = (0..3).map(|a| u64::from(hi[a] - lo[a]) + 1).product();
         let Some(clip) = clip.filter(|_| spanned >= 2 && cells >= CLIP_MIN_CELLS) else {
-            return self.for_cells(b, f);
+            return self.for_cells((lo, hi), f);
         };
         for z in lo[2]..=hi[2] {
             let zb = self.slab_part(i, *b, clip, 2, z);
