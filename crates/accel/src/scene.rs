@@ -1159,6 +1159,7 @@ impl<P: Primitives> Scene<P> {
                             }
                             hit
                         },
+                        &|first| self.prims.prefetch_block(first),
                         |n, g, m| crate::simd::group_slab8(avx, n, g, m),
                     ));
                 } else {
@@ -1178,6 +1179,7 @@ impl<P: Primitives> Scene<P> {
                             }
                             hit.is_some()
                         },
+                        &|first| self.prims.prefetch_block(first),
                         |n, g, m| crate::simd::group_slab8(avx, n, g, m),
                     ));
                 }
@@ -1484,6 +1486,10 @@ impl<P: Primitives> GroupLeaf for ClosestInGroup<'_, P> {
             |s, n, t| scene.prims.intersect_block_pre(avx, pre, s, n, r, t),
         );
         (self.tmax[i] != before).then_some(self.tmax[i])
+    }
+    #[inline(always)]
+    fn prefetch(&self, first: u32) {
+        self.scene.prims.prefetch_block(first);
     }
 }
 
