@@ -47,6 +47,8 @@ pub(crate) trait PacketLeaf {
         lanes: u32,
         tmax: &mut [f32; LANES],
     );
+    /// Starts fetching the leaf whose first slot is `first` (a hint).
+    fn prefetch(&self, first: u32);
 }
 
 /// Eight rays in structure-of-arrays form, with what the box and triangle

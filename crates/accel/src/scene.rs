@@ -1706,6 +1706,10 @@ struct WalkLeaf<'a, 'r, P, const ANY: bool> {
 
 impl<P: Primitives, const ANY: bool> PacketLeaf for WalkLeaf<'_, '_, P, ANY> {
     #[inline(always)]
+    fn prefetch(&self, first: u32) {
+        self.scene.prims.prefetch_block(first);
+    }
+    #[inline(always)]
     fn visit(
         &mut self,
         avx: Option<Avx2>,
