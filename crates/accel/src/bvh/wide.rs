@@ -1047,7 +1047,7 @@ impl<const W: usize> WideBvh<W> {
     /// octant) hit anything: a bit each in the returned mask, set when
     /// `leaf(i, first, count)`, which tests ray `i` against a leaf,
     /// returned true. [`Self::occluded_group_by`] with the leaf tested
-    /// ray by ray (and `prefetch_leaf` its).
+    /// ray by ray (`prefetch_leaf` as there).
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn occluded_group(
@@ -1172,11 +1172,7 @@ impl<const W: usize> WideBvh<W> {
                 let k = any.trailing_zeros() as usize;
                 any &= any - 1;
                 if any != 0 {
-                    if n.count[k] == 0 {
-                        simd::prefetch(&nodes[n.child[k] as usize]);
-                    } else {
-                        prefetch_leaf(n.child[k]);
-                    }
+                    fetch_child(nodes, n.child[k], n.count[k], prefetch_leaf);
                 }
                 items[top] = (n.child[k], n.count[k], entered[k]);
                 top += 1;
@@ -1290,11 +1286,7 @@ impl<const W: usize> WideBvh<W> {
             // Fetching starts now for all but the nearest, which is
             // popped next.
             for &k in &order[..h.saturating_sub(1)] {
-                if n.count[k] == 0 {
-                    simd::prefetch(&nodes[n.child[k] as usize]);
-                } else {
-                    leaf.prefetch(n.child[k]);
-                }
+                fetch_child(nodes, n.child[k], n.count[k], &|f| leaf.prefetch(f));
             }
             for &k in &order[..h] {
                 items[top] = GroupEntry {
@@ -1332,6 +1324,23 @@ pub(crate) fn reaching(entry: f32, bounds: &[f32; GROUP]) -> u32 {
         reach |= u32::from(entry <= *b) << i;
     }
     reach
+}
+
+/// Starts fetching a child that a walk pushes to visit later: a node's
+/// lines (`count` 0), or a leaf's block through `prefetch_leaf(first)`.
+/// A hint: no result depends on it.
+#[inline(always)]
+fn fetch_child<const W: usize>(
+    nodes: &[WideNode<W>],
+    child: u32,
+    count: u32,
+    prefetch_leaf: &impl Fn(u32),
+) {
+    if count == 0 {
+        simd::prefetch(&nodes[child as usize]);
+    } else {
+        prefetch_leaf(child);
+    }
 }
 
 /// A node's entered children (`mask`, entry distances `t`): all but the
@@ -1377,11 +1386,7 @@ fn enter<const ORDERED: bool, const W: usize>(
     if mask == 0 {
         // Two children entered, the commonest case after one: that
         // comparison instead of the sort.
-        if far.count == 0 {
-            simd::prefetch(&nodes[far.child as usize]);
-        } else {
-            prefetch_leaf(far.child);
-        }
+        fetch_child(nodes, far.child, far.count, prefetch_leaf);
         stack.push(far);
         return Some(near);
     }
@@ -1400,11 +1405,7 @@ fn enter<const ORDERED: bool, const W: usize>(
         h += 1;
     }
     for item in &hits[..h - 1] {
-        if item.count == 0 {
-            simd::prefetch(&nodes[item.child as usize]);
-        } else {
-            prefetch_leaf(item.child);
-        }
+        fetch_child(nodes, item.child, item.count, prefetch_leaf);
         stack.push(*item);
     }
     Some(hits[h - 1])
@@ -1484,13 +1485,10 @@ impl<const W: usize> WideBvh<W> {
         // past the L2 cache, since over smaller ones they lost 1-2%.
         let fetch = !ORDERED || self.node_bytes() >= LARGE_TREE_BYTES;
         let prefetch_item = |leaf: &mut _, child: u32, count: u32| {
-            if !fetch {
-                return;
-            }
-            if count == 0 {
-                simd::prefetch(&self.nodes[child as usize]);
-            } else {
-                PacketLeaf::prefetch(leaf, child);
+            if fetch {
+                fetch_child(&self.nodes, child, count, &|f| {
+                    PacketLeaf::prefetch(leaf, f)
+                });
             }
         };
         loop {
