@@ -1,6 +1,6 @@
 //! `raymesh-ab [--baseline OTHER] MESH [--rays RAYS.npy | --workload W
-//! --size N] [--accel A] [--query closest,any-hit] [--packets | --stream]
-//! [--chunk C] [--rounds R] [--instances K] [--spatial-splits [F]]
+//! --size N] [--accel A] [--query closest,any-hit,occluded] [--packets |
+//! --stream] [--rows] [--chunk C] [--rounds R] [--instances K] [--spatial-splits [F]]
 //! [--optimize] [--set K=V,...] [--baseline-set K=V,...] [--json]`:
 //! two builds of raymesh on the same rays, taking turns chunk by chunk, so
 //! that a change of a few percent can be told from this machine's drift.
@@ -21,10 +21,13 @@
 use anyhow::{bail, ensure, Context, Result};
 use clap::Parser;
 use raymesh::npy;
-use raymesh::workload::{make_rays, Workload};
-use raymesh_accel::{AccelKind, BareHit, BuildConfig, Ray, Scene, TriangleMesh, Triangles, LANES};
+use raymesh::workload::{make_rays, row_ray, Workload};
+use raymesh_accel::{
+    AccelKind, BareHit, BuildConfig, Ray, Scene, Surface, TriangleMesh, Triangles, LANES,
+};
 use raymesh_mesh::io::read_mesh;
 use serde::Serialize;
+use std::borrow::Cow;
 use std::io::{BufRead, BufReader, BufWriter, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdin, ChildStdout, Command, Stdio};
@@ -60,7 +63,9 @@ struct Args {
     /// Structure to build.
     #[arg(long, default_value = "bvh")]
     accel: AccelKind,
-    /// Queries to compare, comma-separated: closest, any-hit.
+    /// Queries to compare, comma-separated: closest, any-hit, occluded
+    /// (whether each ray hits: `Scene::occluded`, `occluded8`,
+    /// `occluded_stream`, the calls behind `raymesh-peers`'s any-hit rows).
     #[arg(long, default_value = "closest,any-hit")]
     query: String,
     /// Eight consecutive rays at a time (`Scene::intersect8_bare`,
@@ -70,6 +75,13 @@ struct Args {
     /// Each chunk traced as streams of 1,024 rays (`Scene::stream_bare`).
     #[arg(long)]
     stream: bool,
+    /// Each ray made from its row (`ox oy oz tmin dx dy dz tmax`) inside
+    /// the timed pass, as `raymesh-peers` makes them (and Embree makes
+    /// its own), so that `Ray::new` is timed with the queries; without it
+    /// the rays are made once, before any chunk (a baseline from before
+    /// `--rows` refuses it).
+    #[arg(long)]
+    rows: bool,
     /// Rays a chunk: each build traces a chunk, then the other.
     #[arg(long, default_value_t = 65536)]
     chunk: usize,
@@ -112,6 +124,7 @@ struct Args {
 enum Query {
     Closest,
     AnyHit,
+    Occluded,
 }
 
 impl Query {
@@ -119,6 +132,7 @@ impl Query {
         match self {
             Self::Closest => "closest",
             Self::AnyHit => "any-hit",
+            Self::Occluded => "occluded",
         }
     }
 
@@ -126,7 +140,8 @@ impl Query {
         match s.trim() {
             "closest" => Ok(Self::Closest),
             "any-hit" | "any" => Ok(Self::AnyHit),
-            other => bail!("unknown query '{other}'; expected closest or any-hit"),
+            "occluded" => Ok(Self::Occluded),
+            other => bail!("unknown query '{other}'; expected closest, any-hit or occluded"),
         }
     }
 }
@@ -141,6 +156,9 @@ struct Report {
     rounds: usize,
     query: &'static str,
     mode: &'static str,
+    /// Whether the rays were made from their rows in the timed pass
+    /// (`--rows`).
+    rows: bool,
     baseline_mrays_per_s: f64,
     build_mrays_per_s: f64,
     /// Total time of the baseline over total time of this build: above 1
@@ -242,6 +260,11 @@ fn config(args: &Args, set: Option<&str>) -> Result<BuildConfig> {
 fn serve(args: &Args) -> Result<()> {
     let rays_path = args.rays.as_deref().context("--serve needs --rays")?;
     let rays = npy::read_rays(rays_path)?;
+    let rows: Vec<[f32; 8]> = if args.rows {
+        rays.iter().map(ray_row).collect()
+    } else {
+        Vec::new()
+    };
     let scene = build_scene(args)?;
     let mut hits = Vec::new();
     let mut out = std::io::stdout().lock();
@@ -261,15 +284,13 @@ fn serve(args: &Args) -> Result<()> {
                 let query = Query::parse(query)?;
                 hits.clear();
                 hits.resize(end - first, None);
+                let input = if args.rows {
+                    Input::Rows(&rows[first..end])
+                } else {
+                    Input::Rays(&rays[first..end])
+                };
                 let start = Instant::now();
-                trace_into(
-                    &scene,
-                    &rays[first..end],
-                    query,
-                    args.packets,
-                    args.stream,
-                    &mut hits,
-                );
+                trace_into(&scene, input, query, args.packets, args.stream, &mut hits);
                 let ns = start.elapsed().as_nanos();
                 let sum = checksum(&hits);
                 writeln!(out, "{ns} {sum:016x}")?;
@@ -285,11 +306,52 @@ fn serve(args: &Args) -> Result<()> {
 #[cfg(test)]
 fn trace(scene: &Scene<Triangles>, rays: &[Ray], query: Query, packets: bool, stream: bool) -> u64 {
     let mut hits = vec![None; rays.len()];
-    trace_into(scene, rays, query, packets, stream, &mut hits);
+    trace_into(scene, Input::Rays(rays), query, packets, stream, &mut hits);
     checksum(&hits)
 }
 
-/// Traces `rays` on this thread into `hits` (one each): what a chunk's
+/// A chunk's rays: made before the clock starts, or rows to make them
+/// from inside the timed pass (`--rows`).
+#[derive(Clone, Copy)]
+enum Input<'a> {
+    Rays(&'a [Ray]),
+    Rows(&'a [[f32; 8]]),
+}
+
+impl<'a> Input<'a> {
+    fn len(self) -> usize {
+        match self {
+            Self::Rays(r) => r.len(),
+            Self::Rows(r) => r.len(),
+        }
+    }
+
+    /// Rays `range`: borrowed, or made from their rows.
+    fn rays(self, range: std::ops::Range<usize>) -> Cow<'a, [Ray]> {
+        match self {
+            Self::Rays(r) => Cow::Borrowed(&r[range]),
+            Self::Rows(r) => Cow::Owned(r[range].iter().map(row_ray).collect()),
+        }
+    }
+}
+
+/// A ray's row (BENCH.md's layout), from which `row_ray` makes it again.
+fn ray_row(r: &Ray) -> [f32; 8] {
+    let (o, d) = (r.origin(), r.dir());
+    [o.x, o.y, o.z, r.tmin(), d.x, d.y, d.z, r.tmax()]
+}
+
+/// What an occlusion query's answer goes into the checksum as.
+fn occluded_hit(hit: bool) -> Option<BareHit> {
+    hit.then_some(BareHit {
+        t: 0.0,
+        prim: 0,
+        u: 0.0,
+        v: 0.0,
+    })
+}
+
+/// Traces `input` on this thread into `hits` (one each): what a chunk's
 /// time covers. The checksum is taken afterwards: FNV-1a is a chain of 16
 /// dependent multiplies a ray, which timed with the queries (protocol v1)
 /// added its latency to every ray and, being the harness's own code, moved
@@ -298,27 +360,39 @@ fn trace(scene: &Scene<Triangles>, rays: &[Ray], query: Query, packets: bool, st
 /// walks' code unchanged instruction for instruction).
 fn trace_into(
     scene: &Scene<Triangles>,
-    rays: &[Ray],
+    input: Input,
     query: Query,
     packets: bool,
     stream: bool,
     hits: &mut [Option<BareHit>],
 ) {
-    assert_eq!(rays.len(), hits.len());
+    assert_eq!(input.len(), hits.len());
     let one = |r: &Ray| match query {
         Query::Closest => scene.intersect_bare(r),
         Query::AnyHit => scene.any_hit_bare(r),
+        Query::Occluded => occluded_hit(scene.occluded(r)),
     };
     if stream {
-        for (part, out) in rays.chunks(1024).zip(hits.chunks_mut(1024)) {
-            scene.stream_bare(part, query == Query::AnyHit, out);
+        for (c, out) in hits.chunks_mut(1024).enumerate() {
+            let part = input.rays(c * 1024..c * 1024 + out.len());
+            if query == Query::Occluded {
+                let mut occluded = vec![false; part.len()];
+                scene.occluded_stream(&part, &mut occluded);
+                for (h, o) in out.iter_mut().zip(occluded) {
+                    *h = occluded_hit(o);
+                }
+            } else {
+                scene.stream_bare(&part, query == Query::AnyHit, out);
+            }
         }
     } else if packets {
-        for (part, out) in rays.chunks(LANES).zip(hits.chunks_mut(LANES)) {
-            if let Ok(packet) = <&[Ray; LANES]>::try_from(part) {
+        for (c, out) in hits.chunks_mut(LANES).enumerate() {
+            let part = input.rays(c * LANES..c * LANES + out.len());
+            if let Ok(packet) = <&[Ray; LANES]>::try_from(&*part) {
                 out.copy_from_slice(&match query {
                     Query::Closest => scene.intersect8_bare(packet),
                     Query::AnyHit => scene.any_hit8_bare(packet),
+                    Query::Occluded => scene.occluded8(packet).map(occluded_hit),
                 });
             } else {
                 for (r, h) in part.iter().zip(out) {
@@ -327,8 +401,17 @@ fn trace_into(
             }
         }
     } else {
-        for (r, h) in rays.iter().zip(hits) {
-            *h = one(r);
+        match input {
+            Input::Rays(rays) => {
+                for (r, h) in rays.iter().zip(hits) {
+                    *h = one(r);
+                }
+            }
+            Input::Rows(rows) => {
+                for (r, h) in rows.iter().zip(hits) {
+                    *h = one(&row_ray(r));
+                }
+            }
         }
     }
 }
@@ -398,6 +481,7 @@ impl Server {
             (args.optimize, "--optimize"),
             (args.packets, "--packets"),
             (args.stream, "--stream"),
+            (args.rows, "--rows"),
         ] {
             if on {
                 cmd.arg(flag);
@@ -578,10 +662,15 @@ fn compare(args: &Args) -> Result<()> {
     };
     if !args.json {
         println!(
-            "{}: {} rays ({source}), {}, {mode}; {} chunks of up to {}, {} rounds, \
+            "{}: {} rays ({source}{}), {}, {mode}; {} chunks of up to {}, {} rounds, \
              {} processes of each build taking turns",
             args.mesh.display(),
             n,
+            if args.rows {
+                ", made in the timed pass"
+            } else {
+                ""
+            },
             args.accel.name(),
             chunks.len(),
             args.chunk,
@@ -661,6 +750,7 @@ fn compare(args: &Args) -> Result<()> {
             rounds: args.rounds,
             query: query.name(),
             mode,
+            rows: args.rows,
             baseline_mrays_per_s: rate(total[0]),
             build_mrays_per_s: rate(total[1]),
             speedup: total[0] as f64 / total[1].max(1) as f64,
@@ -737,6 +827,46 @@ mod tests {
         assert_eq!(single, trace(&scene, &rays, Query::Closest, true, false));
         assert_eq!(single, trace(&scene, &rays, Query::Closest, false, true));
         assert_ne!(single, Checksum::default().0, "the rays hit something");
+    }
+
+    #[test]
+    fn rows_and_occlusion_answer_as_the_rays_do() {
+        let mesh = read_mesh(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../tests/data/elephant-with-holes.off"
+        ))
+        .unwrap();
+        let tm = TriangleMesh::new(mesh.positions.clone(), mesh.triangles());
+        let scene = Scene::from_mesh_with(&tm, AccelKind::Bvh8, &BuildConfig::default());
+        let rays: Vec<Ray> = make_rays(Workload::Random, &scene, 21, 1)
+            .into_iter()
+            .map(unpack_ray)
+            .collect();
+        let rows: Vec<[f32; 8]> = rays.iter().map(ray_row).collect();
+        let run = |input: Input, query, packets, stream| {
+            let mut hits = vec![None; input.len()];
+            trace_into(&scene, input, query, packets, stream, &mut hits);
+            hits
+        };
+        for query in [Query::Closest, Query::AnyHit, Query::Occluded] {
+            for (packets, stream) in [(false, false), (true, false), (false, true)] {
+                assert_eq!(
+                    run(Input::Rays(&rays), query, packets, stream),
+                    run(Input::Rows(&rows), query, packets, stream),
+                    "{query:?}, packets {packets}, stream {stream}"
+                );
+            }
+        }
+        // Whether each ray hits, in every mode, is whether it has a
+        // closest hit.
+        let closest = run(Input::Rays(&rays), Query::Closest, false, false);
+        let hit: Vec<bool> = closest.iter().map(Option::is_some).collect();
+        assert!(hit.contains(&true) && hit.contains(&false));
+        for (packets, stream) in [(false, false), (true, false), (false, true)] {
+            let occluded = run(Input::Rows(&rows), Query::Occluded, packets, stream);
+            let got: Vec<bool> = occluded.iter().map(Option::is_some).collect();
+            assert_eq!(got, hit, "packets {packets}, stream {stream}");
+        }
     }
 
     #[test]
