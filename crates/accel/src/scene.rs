@@ -1103,28 +1103,31 @@ impl<P: Primitives> Scene<P> {
             // function's time on primary rays).
             let mut g = GroupRays::of_octant(octant);
             let mut pre = [BlockRay::default(); GROUP];
+            // With any hits, where the leaf visits so far took several
+            // rays each (camera and shadow rays), a block's rows are
+            // loaded once for the rays that reach it together; elsewhere
+            // (diffuse and random rays, a leaf mostly reached by one or
+            // two) ray by ray, which has fewer loops to mispredict.
+            let coherent =
+                any_hit && leaves.0 > 0 && leaves.1 as f64 >= SHARED_LEAF_RAYS * leaves.0 as f64;
+            // For the coherent walk, the group's rays of each axis order
+            // too, which read the same rows of a block (a pass of their
+            // own cost a loop more a ray: primary and shadow occlusion
+            // streams 1.01-1.02x without it).
+            let mut classes = [0u32; AXIS_CLASSES];
             for ((k, p), &i) in pre.iter_mut().enumerate().zip(group) {
                 let r = &rays[i];
                 g.set(k, r);
                 *p = self.prims.block_ray(r);
+                if coherent {
+                    classes[p.axis_class()] |= 1 << k;
+                }
             }
             if any_hit {
-                // Where the leaf visits so far took several rays each
-                // (camera and shadow rays), a block's rows are loaded once
-                // for the rays that reach it together; elsewhere (diffuse
-                // and random rays, a leaf mostly reached by one or two)
-                // ray by ray, which has fewer loops to mispredict. Two
-                // walks, each with one copy of the kernel: with two in one,
-                // the leaf closure was no longer inlined and every
+                // Two walks, each with one copy of the kernel: with two in
+                // one, the leaf closure was no longer inlined and every
                 // intrinsic became a call (0.08-0.13x).
-                let coherent = leaves.1 as f64 >= SHARED_LEAF_RAYS * leaves.0 as f64;
-                if coherent && leaves.0 > 0 {
-                    // The group's rays of each axis order, which read the
-                    // same rows of a block.
-                    let mut classes = [0u32; AXIS_CLASSES];
-                    for (k, p) in pre.iter().enumerate().take(group.len()) {
-                        classes[p.axis_class()] |= 1 << k;
-                    }
+                if coherent {
                     avx_run!(avx, || bvh.occluded_group_by(
                         &g,
                         group.len(),
