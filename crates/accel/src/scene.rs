@@ -1088,6 +1088,18 @@ impl<P: Primitives> Scene<P> {
         let mut shared = (0u64, 0u64);
         let mut leaves = (0u64, 0u64);
         let mut handed = None;
+        // Each ray's node-test rows and leaf-test constants, made once
+        // for the walk, in place and in one pass over the rays (made by
+        // `array::from_fn`, the constants went through a call and a copy
+        // that waited on the call's narrower stores: half of this
+        // function's time on primary rays). One set of rows for all the
+        // groups, each group's rays put over the last's: a walk reads only
+        // its own rays' lanes (`len` of them, and the bits of their
+        // masks), so what lies past them is never read, and the rows need
+        // no clearing (made anew for each group, 3 KiB of zeros a group
+        // cost primary occlusion streams a few percent).
+        let mut g = GroupRays::of_octant(0);
+        let mut pre = [BlockRay::default(); GROUP];
         for &(a, b, octant) in &groups {
             let few = (shared.1 as f64) < f64::from(policy.min_share) * shared.0 as f64;
             if a >= policy.probe && few {
@@ -1096,13 +1108,7 @@ impl<P: Primitives> Scene<P> {
             }
             let group = &order[a..b];
             let ray = |i: usize| &rays[group[i]];
-            // Each ray's node-test rows and leaf-test constants, made once
-            // for the walk, in place and in one pass over the rays (made
-            // by `array::from_fn`, the constants went through a call and a
-            // copy that waited on the call's narrower stores: half of this
-            // function's time on primary rays).
-            let mut g = GroupRays::of_octant(octant);
-            let mut pre = [BlockRay::default(); GROUP];
+            g.set_octant(octant);
             // With any hits, where the leaf visits so far took several
             // rays each (camera and shadow rays), a block's rows are
             // loaded once for the rays that reach it together; elsewhere

@@ -920,6 +920,13 @@ impl GroupRays {
         }
     }
 
+    /// Makes the group's rays go in the octant `octant` (its lanes then
+    /// set anew by [`Self::set`]): for a group's rows reused by the next.
+    #[inline(always)]
+    pub(crate) fn set_octant(&mut self, octant: usize) {
+        (self.near, self.far) = BoxRay::octant_rows(octant);
+    }
+
     /// The octant of the group's rays, from the rows they meet first (a
     /// backward axis's is the upper bounds', past the three lower rows).
     #[cfg(test)]
