@@ -810,8 +810,8 @@ mod tests {
         assert_ne!(sum(&[hit(1.0)]), sum(&[None]));
     }
 
-    #[test]
-    fn every_mode_traces_the_same_closest_hits() {
+    /// The elephant (holes and all) over an 8-wide BVH, and random rays.
+    fn elephant_and_rays() -> (Scene<Triangles>, Vec<Ray>) {
         let mesh = read_mesh(concat!(
             env!("CARGO_MANIFEST_DIR"),
             "/../../tests/data/elephant-with-holes.off"
@@ -819,10 +819,16 @@ mod tests {
         .unwrap();
         let tm = TriangleMesh::new(mesh.positions.clone(), mesh.triangles());
         let scene = Scene::from_mesh_with(&tm, AccelKind::Bvh8, &BuildConfig::default());
-        let rays: Vec<Ray> = make_rays(Workload::Random, &scene, 21, 1)
+        let rays = make_rays(Workload::Random, &scene, 21, 1)
             .into_iter()
             .map(unpack_ray)
             .collect();
+        (scene, rays)
+    }
+
+    #[test]
+    fn every_mode_traces_the_same_closest_hits() {
+        let (scene, rays) = elephant_and_rays();
         let single = trace(&scene, &rays, Query::Closest, false, false);
         assert_eq!(single, trace(&scene, &rays, Query::Closest, true, false));
         assert_eq!(single, trace(&scene, &rays, Query::Closest, false, true));
@@ -831,17 +837,7 @@ mod tests {
 
     #[test]
     fn rows_and_occlusion_answer_as_the_rays_do() {
-        let mesh = read_mesh(concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../../tests/data/elephant-with-holes.off"
-        ))
-        .unwrap();
-        let tm = TriangleMesh::new(mesh.positions.clone(), mesh.triangles());
-        let scene = Scene::from_mesh_with(&tm, AccelKind::Bvh8, &BuildConfig::default());
-        let rays: Vec<Ray> = make_rays(Workload::Random, &scene, 21, 1)
-            .into_iter()
-            .map(unpack_ray)
-            .collect();
+        let (scene, rays) = elephant_and_rays();
         let rows: Vec<[f32; 8]> = rays.iter().map(ray_row).collect();
         let run = |input: Input, query, packets, stream| {
             let mut hits = vec![None; input.len()];
