@@ -326,6 +326,22 @@ impl<'a> Input<'a> {
         }
     }
 
+    /// `f` of rays `range`, at most [`LANES`] and at least one: borrowed,
+    /// or made from their rows on the stack (a packet's rays, made with no
+    /// allocation).
+    fn with_few<R>(self, range: std::ops::Range<usize>, f: impl FnOnce(&[Ray]) -> R) -> R {
+        match self {
+            Self::Rays(r) => f(&r[range]),
+            Self::Rows(rows) => {
+                let rows = &rows[range];
+                assert!(!rows.is_empty() && rows.len() <= LANES);
+                let rays: [Ray; LANES] =
+                    std::array::from_fn(|k| row_ray(&rows[k.min(rows.len() - 1)]));
+                f(&rays[..rows.len()])
+            }
+        }
+    }
+
     /// Rays `range`: borrowed, or made from their rows.
     fn rays(self, range: std::ops::Range<usize>) -> Cow<'a, [Ray]> {
         match self {
@@ -387,18 +403,19 @@ fn trace_into(
         }
     } else if packets {
         for (c, out) in hits.chunks_mut(LANES).enumerate() {
-            let part = input.rays(c * LANES..c * LANES + out.len());
-            if let Ok(packet) = <&[Ray; LANES]>::try_from(&*part) {
-                out.copy_from_slice(&match query {
-                    Query::Closest => scene.intersect8_bare(packet),
-                    Query::AnyHit => scene.any_hit8_bare(packet),
-                    Query::Occluded => scene.occluded8(packet).map(occluded_hit),
-                });
-            } else {
-                for (r, h) in part.iter().zip(out) {
-                    *h = one(r);
+            input.with_few(c * LANES..c * LANES + out.len(), |part| {
+                if let Ok(packet) = <&[Ray; LANES]>::try_from(part) {
+                    out.copy_from_slice(&match query {
+                        Query::Closest => scene.intersect8_bare(packet),
+                        Query::AnyHit => scene.any_hit8_bare(packet),
+                        Query::Occluded => scene.occluded8(packet).map(occluded_hit),
+                    });
+                } else {
+                    for (r, h) in part.iter().zip(out) {
+                        *h = one(r);
+                    }
                 }
-            }
+            });
         }
     } else {
         match input {
