@@ -20,8 +20,10 @@ impl Default for Aabb {
     }
 }
 
-/// Relative slack added to a ray's upper bound before it culls boxes.
-const CULL_SLACK: f32 = 1e-5;
+/// Relative slack added to a ray's upper bound before it culls boxes
+/// ([`cull_bound`]; public for SIMD kernels that compute the same bound
+/// for several rays at once).
+pub const CULL_SLACK: f32 = 1e-5;
 
 /// The bound a traversal culls boxes against, given the best hit's `t`:
 /// a few ulps above it, because a primitive's `t` and its box's entry are

@@ -14,7 +14,7 @@ mod ray;
 mod sphere;
 mod triangle;
 
-pub use aabb::{cull_bound, Aabb};
+pub use aabb::{cull_bound, Aabb, CULL_SLACK};
 pub use float::{
     exit_reciprocal, gamma, max_nan_second, min_nan_second, next_down, next_up, ROBUST_EXIT,
 };
