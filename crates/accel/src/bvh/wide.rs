@@ -937,10 +937,11 @@ impl GroupRays {
     /// Puts `ray`, which must lie in the group's octant (checked in debug
     /// builds only: the caller's octant sort puts it there), in lane `i`
     /// (below [`GROUP`]): what its node test needs ([`BoxRay::new`]'s) by
-    /// rows, and its culling bound. One pass over the rays with their
-    /// leaf constants, without `new`'s check and its `BoxRay` a ray: the
-    /// group streams 1.00–1.03 times as fast (`raymesh-ab --stream`, pig,
-    /// bunny00 and the dragon, primary, shadow and diffuse rays).
+    /// rows, and its culling bound. Without `new`'s check and its `BoxRay`
+    /// a ray: the group streams 1.00–1.03 times as fast (`raymesh-ab
+    /// --stream`, pig, bunny00 and the dragon, primary, shadow and diffuse
+    /// rays). Streams fill a group eight rays at a time in AVX2
+    /// (`simd::set_group_rays`, the same bits), this for the rest.
     #[inline(always)]
     pub(crate) fn set(&mut self, i: usize, ray: &Ray) {
         debug_assert_eq!(BoxRay::octant_rows(ray.octant()).0, self.near);
