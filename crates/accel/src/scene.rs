@@ -1092,12 +1092,12 @@ impl<P: Primitives> Scene<P> {
         // for the walk, in place (made by `array::from_fn`, the constants
         // went through a call and a copy that waited on the call's
         // narrower stores: half of this function's time on primary rays).
-        // One set of rows for all the
-        // groups, each group's rays put over the last's: a walk reads only
-        // its own rays' lanes (`len` of them, and the bits of their
-        // masks), so what lies past them is never read, and the rows need
-        // no clearing (made anew for each group, 3 KiB of zeros a group
-        // cost primary occlusion streams a few percent).
+        // One set of rows for all the groups, each group's rays put over
+        // the last's: a walk reads only its own rays' lanes (`len` of
+        // them, and the bits of their masks), so what lies past them is
+        // never read, and the rows need no clearing (made anew for each
+        // group, 3 KiB of zeros a group cost primary occlusion streams a
+        // few percent).
         let mut g = GroupRays::of_octant(0);
         let mut pre = [BlockRay::default(); GROUP];
         for &(a, b, octant) in &groups {
@@ -1116,16 +1116,15 @@ impl<P: Primitives> Scene<P> {
             // two) ray by ray, which has fewer loops to mispredict.
             let coherent =
                 any_hit && leaves.0 > 0 && leaves.1 as f64 >= SHARED_LEAF_RAYS * leaves.0 as f64;
-            // For the coherent walk, the group's rays of each axis order
-            // too, which read the same rows of a block (a pass of their
-            // own cost a loop more a ray: primary and shadow occlusion
-            // streams 1.01-1.02x without it).
-            let mut classes = [0u32; AXIS_CLASSES];
             // The node-test rows eight rays at a time (AVX2 transposes:
             // ray by ray, they were eleven scalar stores a ray to as many
             // cache lines; primary occlusion streams 1.02-1.04x), then the
-            // leaf constants ray by ray.
+            // leaf constants ray by ray and, for the coherent walk, the
+            // group's rays of each axis order, which read the same rows of
+            // a block (a pass of their own cost a loop more a ray: primary
+            // and shadow occlusion streams 1.01-1.02x without it).
             crate::simd::set_group_rays(avx, &mut g, rays, group);
+            let mut classes = [0u32; AXIS_CLASSES];
             for ((k, p), &i) in pre.iter_mut().enumerate().zip(group) {
                 let r = &rays[i];
                 *p = self.prims.block_ray(r);
