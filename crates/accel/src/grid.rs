@@ -392,8 +392,12 @@ impl Grid {
         list: &mut impl FnMut(&[u32]) -> f32,
         mut mailbox: Option<(u32, &mut Vec<u32>)>,
     ) {
-        let (o, d, inv) = (ray.origin(), ray.dir(), ray.inv_dir());
-        let p = ray.at(t_enter);
+        let (d, p) = (ray.dir(), ray.at(t_enter));
+        // Arrays, not `Vec3`s: `Vec3`'s `Index` is a `match` on the axis,
+        // which changes from step to step, and mispredicted (as in the
+        // k-d tree's walk).
+        let (o, inv) = (ray.origin().to_array(), ray.inv_dir().to_array());
+        let (lo, size) = (self.bounds.min.to_array(), self.cell_size.to_array());
         let mut cell = [0u32; 3];
         let mut step = [0i32; 3];
         for a in 0..3 {
@@ -406,6 +410,21 @@ impl Grid {
                 0
             };
         }
+        // What a step along each axis adds to the cell's index (wrapping:
+        // a step down adds the stride's negation).
+        let stride = [
+            1usize,
+            self.res[0] as usize,
+            self.res[0] as usize * self.res[1] as usize,
+        ];
+        let delta = [0, 1, 2].map(|a| {
+            if step[a] < 0 {
+                stride[a].wrapping_neg()
+            } else {
+                stride[a]
+            }
+        });
+        let mut c = self.cell_index(cell);
         // Exit distance of the current cell on each axis, computed from the
         // boundary itself (not accumulated) so it does not drift.
         let boundary_t = |a: usize, c: u32| -> f32 {
@@ -413,17 +432,18 @@ impl Grid {
                 return f32::INFINITY;
             }
             let edge = c + (step[a] > 0) as u32;
-            (self.bounds.min[a] + edge as f32 * self.cell_size[a] - o[a]) * inv[a]
+            (lo[a] + edge as f32 * size[a] - o[a]) * inv[a]
         };
         let mut next = [
             boundary_t(0, cell[0]),
             boundary_t(1, cell[1]),
             boundary_t(2, cell[2]),
         ];
-        let mut tmax = ray.tmax();
+        // `cull_bound` of the best hit's `t` so far, updated where it
+        // changes (after a cell's tests) rather than at every step.
+        let mut bound = cull_bound(ray.tmax());
         loop {
             counter.node();
-            let c = self.cell_index(cell);
             let here =
                 &self.cell_prims[self.cell_starts[c] as usize..self.cell_starts[c + 1] as usize];
             let mut block = [0u32; BLOCK];
@@ -438,10 +458,11 @@ impl Grid {
                     n += 1;
                 }
                 if n > 0 && (n == BLOCK || k + 1 == here.len()) {
-                    tmax = list(&block[..n]);
+                    let tmax = list(&block[..n]);
                     if tmax < ray.tmin() {
                         return;
                     }
+                    bound = cull_bound(tmax);
                     n = 0;
                 }
             }
@@ -454,7 +475,7 @@ impl Grid {
             };
             let exit = next[a];
             // Any closer hit would lie in a cell already visited.
-            if cull_bound(tmax) < exit || exit.is_infinite() {
+            if bound < exit || exit.is_infinite() {
                 return;
             }
             if step[a] > 0 {
@@ -468,6 +489,8 @@ impl Grid {
                 }
                 cell[a] -= 1;
             }
+            c = c.wrapping_add(delta[a]);
+            debug_assert_eq!(c, self.cell_index(cell));
             next[a] = boundary_t(a, cell[a]);
         }
     }
