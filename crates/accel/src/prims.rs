@@ -811,8 +811,8 @@ impl Primitives for Triangles {
             // a real triangle: zeroed, as they were, they made the block
             // a `memset` a leaf and degenerate triangles, whose edge
             // functions are all zero and sent every block of fewer than 8
-            // down the kernel's f64 branch (k-d tree and grid, random and
-            // primary rays: 0.99-1.08x). Gathered into registers by AVX2
+            // down the kernel's f64 branch (k-d tree and grid, every
+            // workload: 0.99-1.09x). Gathered into registers by AVX2
             // gathers instead, the k-d tree's random rays took 12% fewer
             // instructions and ran 1.01x, the grid's 0.95-1.00x: gathers
             // of mostly short lists cost more here (Zen 3).
