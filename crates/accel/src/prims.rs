@@ -803,40 +803,12 @@ impl Primitives for Triangles {
         let ids = &ids[..ids.len().min(BLOCK)];
         #[cfg(target_arch = "x86_64")]
         if crate::simd::has_avx2() {
-            // The block gathered as one group: row `r`'s lane `k` is
-            // triangle `ids[k]`'s coordinate `r`. From lane 0 the block
-            // lies in the group, and its loads end with row 8. Each row
-            // starts as the first triangle's coordinate in every lane, so
-            // that the lanes past the list (masked off by the kernel) hold
-            // a real triangle: zeroed, as they were, they made the block
-            // a `memset` a leaf and degenerate triangles, whose edge
-            // functions are all zero and sent every block of fewer than 8
-            // down the kernel's f64 branch (k-d tree and grid, every
-            // workload: 0.99-1.09x). Gathered into registers by AVX2
-            // gathers instead, the k-d tree's random rays took 12% fewer
-            // instructions and ran 1.01x, the grid's 0.95-1.00x: gathers
-            // of mostly short lists cost more here (Zen 3).
-            let Some(&i0) = ids.first() else {
-                return (0, BlockHits::default());
-            };
-            assert!((i0 as usize) < self.len);
-            let at0 = slot_at(i0 as usize, 0);
-            let c0 = &self.data()[at0..=at0 + 8 * GROUP_SLOTS];
-            let mut rows: [[f32; GROUP_SLOTS]; 9] =
-                std::array::from_fn(|r| [c0[r * GROUP_SLOTS]; GROUP_SLOTS]);
-            for (k, &i) in ids.iter().enumerate().skip(1) {
-                let i = i as usize;
-                assert!(i < self.len);
-                // The triangle's 9 coordinates, 8 floats apart: one slice,
-                // one bounds check.
-                let at = slot_at(i, 0);
-                let coords = &self.data()[at..=at + 8 * GROUP_SLOTS];
-                for (r, row) in rows.iter_mut().enumerate() {
-                    row[k] = coords[r * GROUP_SLOTS];
-                }
+            // The block's rows built in registers from the listed
+            // triangles' coordinates (see `triangles8_list`).
+            if let Some(block) = crate::simd::triangles8_list(self.data(), self.len, ids, ray, tmax)
+            {
+                return redo_lanes(self, |k| ids[k], block, ray, tmax);
             }
-            let block = crate::simd::triangles8(rows.as_flattened(), 0, ids.len(), ray, tmax);
-            return redo_lanes(self, |k| ids[k], block, ray, tmax);
         }
         let mut out = BlockHits::default();
         let mask = intersect_each(self, |k| ids[k], 0..ids.len(), ray, tmax, &mut out);
