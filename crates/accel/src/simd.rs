@@ -1309,8 +1309,9 @@ pub(crate) fn triangles8_list(
 /// The rows and the kernel of [`triangles8_list`].
 ///
 /// # Safety
-/// The CPU must have AVX2; `rows.add(slots[k] + 64 + 8)` must stay within
-/// the floats from `rows` for each lane.
+/// The CPU must have AVX2; for each lane `k`, `rows.add(slots[k] + o)`
+/// must address a readable float for every row offset `o` of at most 64
+/// (a row's offset, [`kernel_row`], is at most 64).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
