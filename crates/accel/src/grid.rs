@@ -30,6 +30,8 @@ pub struct Grid {
     inv_cell_size: Vec3,
     cell_starts: Vec<u32>,
     cell_prims: Vec<u32>,
+    /// Bit `c % 64` of word `c / 64`: whether cell `c` lists anything.
+    occupied: Vec<u64>,
     len: usize,
 }
 
@@ -45,6 +47,19 @@ const CLIP_MIN_CELLS: u64 = 27;
 thread_local! {
     /// Mailbox: the ray stamp each primitive was last tested with.
     static MAILBOX: RefCell<(u32, Vec<u32>)> = const { RefCell::new((0, Vec::new())) };
+}
+
+/// The bitmap of [`Grid::occupied`] for the cells whose list bounds are
+/// `starts` (one more than the cells).
+fn occupancy(starts: &[u32]) -> Vec<u64> {
+    let cells = starts.len().saturating_sub(1);
+    let mut bits = vec![0u64; cells.div_ceil(64).max(1)];
+    for (c, w) in starts.windows(2).enumerate() {
+        if w[1] > w[0] {
+            bits[c / 64] |= 1 << (c % 64);
+        }
+    }
+    bits
 }
 
 impl Grid {
@@ -103,6 +118,7 @@ impl Grid {
                 inv_cell_size: Vec3::ONE,
                 cell_starts: vec![0, 0],
                 cell_prims: Vec::new(),
+                occupied: vec![0],
                 len: n,
             };
         }
@@ -136,6 +152,7 @@ impl Grid {
             inv_cell_size,
             cell_starts: Vec::new(),
             cell_prims: Vec::new(),
+            occupied: Vec::new(),
             len: n,
         };
         // Two parallel passes, count per cell then fill (CSR), with atomic
@@ -193,6 +210,7 @@ impl Grid {
                 run[a as usize..b as usize].sort_unstable();
             }
         });
+        g.occupied = occupancy(&counts);
         g.cell_starts = counts;
         g.cell_prims = prims;
         g
@@ -338,6 +356,7 @@ impl Grid {
             depth: 1,
             bytes: self.cell_starts.len() * 4
                 + self.cell_prims.len() * 4
+                + self.occupied.len() * 8
                 + std::mem::size_of::<Self>(),
             sah_cost,
             ..AccelStats::default()
@@ -444,8 +463,18 @@ impl Grid {
         let mut bound = cull_bound(ray.tmax());
         loop {
             counter.node();
-            let here =
-                &self.cell_prims[self.cell_starts[c] as usize..self.cell_starts[c + 1] as usize];
+            // Most cells a ray steps through are empty: one bit says so,
+            // from a bitmap 32 times smaller than the lists' bounds (4
+            // bytes a cell), which stays in the cache where they do not.
+            // `raymesh-ab --accel grid`, random rays: bunny00 subdivided
+            // twice (1.2M triangles) 1.16-1.57x, a 700K-triangle sphere
+            // 1.14-1.25x; bunny00 and the dragon, random and primary rays,
+            // 0.96-1.04x (their bounds fit the L2 cache).
+            let here: &[u32] = if self.occupied[c / 64] >> (c % 64) & 1 != 0 {
+                &self.cell_prims[self.cell_starts[c] as usize..self.cell_starts[c + 1] as usize]
+            } else {
+                &[]
+            };
             let mut block = [0u32; BLOCK];
             let mut n = 0;
             for (k, &p) in here.iter().enumerate() {
