@@ -48,7 +48,7 @@ const CLIP_MIN_CELLS: u64 = 27;
 /// (4 bytes a primitive in every thread that traced, read at random on
 /// large meshes): `raymesh-ab --accel grid`, random rays, bunny00
 /// subdivided twice (1.2M triangles) 1.06-1.14x, a 700K-triangle sphere
-/// 1.10x, bunny00 and the dragon 0.97-1.03x (primary rays 0.98-1.02x). 64
+/// 1.10x, bunny00 and the dragon 0.97-1.03x (primary rays 0.99-1.01x). 64
 /// slots read 0.94-0.97x on the dragon's primary rays.
 const MAILBOX_SLOTS: usize = 256;
 
