@@ -8,8 +8,8 @@ use crate::simd::{BlockRay, AXIS_CLASSES};
 use crate::{
     packet::{Packet8, PacketLeaf, LANES},
     prims::BLOCK,
-    Accel, AccelKind, AccelStats, Avx2, BlockHits, BuildConfig, Bvh, Bvh4, Bvh8, CountStats, Grid,
-    KdTree, NoStats, PrimHit, Primitives, RayCounter, TriangleMesh, Triangles,
+    Accel, AccelKind, AccelStats, Avx2, BlockHits, BuildConfig, Bvh, Bvh4, Bvh8, Clip, CountStats,
+    Grid, KdTree, NoStats, PrimHit, Primitives, RayCounter, TriangleMesh, Triangles,
 };
 use raymesh_geometry::{Aabb, Ray, Rays8, Vec3};
 use rayon::prelude::*;
@@ -126,6 +126,33 @@ pub struct Scene<P> {
     original: Option<Vec<u32>>,
 }
 
+/// A structure of `kind` other than a BVH over `n` primitives (the box of
+/// primitive `i` is `bounds(i)`), with the union of their boxes.
+fn build_not_bvh(
+    kind: AccelKind,
+    n: usize,
+    bounds: &(dyn Fn(u32) -> Aabb + Sync),
+    clip: &Clip<'_>,
+    config: &BuildConfig,
+) -> (Accel, Aabb) {
+    if kind == AccelKind::Grid {
+        // The grid asks for the boxes in each pass instead of keeping them.
+        let (grid, b) = Grid::build_by(n, bounds, Some(clip), config);
+        return (Accel::Grid(grid), b);
+    }
+    let boxes: Vec<Aabb> = (0..n as u32).into_par_iter().map(bounds).collect();
+    let b = boxes
+        .par_iter()
+        .copied()
+        .reduce(|| Aabb::EMPTY, Aabb::union);
+    let accel = if kind == AccelKind::KdTree {
+        Accel::KdTree(KdTree::build_clipped(&boxes, clip, config))
+    } else {
+        Accel::build(kind, &boxes, config)
+    };
+    (accel, b)
+}
+
 impl<P: Primitives> Scene<P> {
     /// Builds the structure of `kind` with default settings.
     #[must_use]
@@ -144,33 +171,14 @@ impl<P: Primitives> Scene<P> {
         // A BVH's root box is the union of the primitives' boxes: the
         // scene's box, with no array of boxes made.
         let clip = |i, within, axis, pos| prims.clip(i, within, axis, pos);
-        let built = Accel::build_bvh_clipped(kind, n, &|i| prims.bounds(i), &clip, config);
+        let bounds_of = |i| prims.bounds(i);
+        let built = Accel::build_bvh_clipped(kind, n, &bounds_of, &clip, config);
         let (mut accel, bounds) = match built {
             Some(a) => {
                 let b = a.bounds();
                 (a, b)
             }
-            // The grid asks for the boxes in each pass instead of keeping them.
-            None if kind == AccelKind::Grid => {
-                let (grid, b) = Grid::build_by(n, &|i| prims.bounds(i), Some(&clip), config);
-                (Accel::Grid(grid), b)
-            }
-            None => {
-                let boxes: Vec<Aabb> = (0..n as u32)
-                    .into_par_iter()
-                    .map(|i| prims.bounds(i))
-                    .collect();
-                let b = boxes
-                    .par_iter()
-                    .copied()
-                    .reduce(|| Aabb::EMPTY, Aabb::union);
-                let accel = if kind == AccelKind::KdTree {
-                    Accel::KdTree(KdTree::build_clipped(&boxes, &clip, config))
-                } else {
-                    Accel::build(kind, &boxes, config)
-                };
-                (accel, b)
-            }
+            None => build_not_bvh(kind, n, &bounds_of, &clip, config),
         };
         let mut prims = prims;
         let mut leaf_order = false;
@@ -1650,7 +1658,12 @@ impl Scene<Triangles> {
     /// triangles the rows are gathered while the binary tree collapses
     /// into wide nodes (10 MB at most beside it, two short phases that
     /// then share the threads); larger meshes gather after the collapse.
-    /// The build time counts the gathering.
+    /// The other structures (the k-d tree, the grid) are built from the
+    /// mesh's boxes too, and the rows gathered in the mesh's order after
+    /// the build (the k-d builder's references, which carry boxes, are
+    /// gone by then: a 1M-triangle terrain's k-d build peaked at 164 MiB
+    /// instead of 200 in `raymesh scale`). The build time counts the
+    /// gathering.
     #[must_use]
     pub fn from_mesh_with(mesh: &TriangleMesh, kind: AccelKind, config: &BuildConfig) -> Self {
         let start = Instant::now();
@@ -1660,18 +1673,29 @@ impl Scene<Triangles> {
         let gather = |order: &[u32]| Triangles::from_mesh_in_order(mesh, order);
         let bounds_of = |i| mesh.bounds(i);
         let built = Accel::build_bvh_gathering(kind, mesh.len(), &bounds_of, &clip, config, gather);
-        let Some((accel, prims)) = built else {
-            let mut scene = Self::build_with(Triangles::from_mesh(mesh), kind, config);
-            scene.build_ms = start.elapsed().as_secs_f64() * 1e3;
-            return scene;
+        let (accel, prims, bounds) = match built {
+            Some((accel, prims)) => {
+                let bounds = accel.bounds();
+                (accel, prims, bounds)
+            }
+            None => {
+                // The other structures built first, from the mesh's own
+                // boxes, then the rows gathered: they never coexist with
+                // the k-d builder's references.
+                let (accel, bounds) = build_not_bvh(kind, mesh.len(), &bounds_of, &clip, config);
+                let prims = Triangles::from_mesh(mesh);
+                (accel, prims, bounds)
+            }
         };
-        let bounds = accel.bounds();
+        // A BVH's leaves are blocks of the rows; the others' lists name
+        // the triangles by index.
+        let leaf_order = accel.leaf_order().is_some();
         Self {
             prims,
             accel,
             bounds,
             build_ms: start.elapsed().as_secs_f64() * 1e3,
-            leaf_order: true,
+            leaf_order,
             original: None,
         }
     }
