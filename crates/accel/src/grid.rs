@@ -33,7 +33,7 @@ const MAX_CELLS: usize = 1 << 26;
 /// baseline on the small meshes), primary rays 1.17-1.66x (bunny00, the
 /// dragon) and 1.56-1.99x (a 2M-triangle terrain, bunny00 subdivided
 /// twice), random rays 0.99-1.17x, diffuse 0.96-1.16x (the dragon's
-/// 0.96-0.99x), shadow 0.99-1.19x; for a byte a cell (about 2 a
+/// 0.96-0.99x), shadow 0.99-1.20x; for a byte a cell (about 2 a
 /// triangle) and builds about 7% longer.
 #[derive(Clone, Debug)]
 pub struct Grid {
