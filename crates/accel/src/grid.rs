@@ -549,16 +549,19 @@ impl Grid {
                     // from there. `boundary_t` grows along an axis, so no
                     // axis passes its last cell of them, nor the grid's.
                     let r = u32::from(clear) - 1;
-                    let last = [0, 1, 2].map(|a| {
+                    // Written out per axis: as `[0, 1, 2].map(..)` it
+                    // was a call, which made the walk spill its values.
+                    let last = |a: usize| {
                         if step[a] > 0 {
                             (cell[a] + r).min(self.res[a] - 1)
                         } else {
                             cell[a].saturating_sub(r)
                         }
-                    });
-                    let exit = (0..3)
-                        .map(|a| boundary_t(a, last[a]))
-                        .fold(f32::INFINITY, f32::min);
+                    };
+                    let exit = f32::INFINITY
+                        .min(boundary_t(0, last(0)))
+                        .min(boundary_t(1, last(1)))
+                        .min(boundary_t(2, last(2)));
                     for a in 0..3 {
                         while next[a] < exit {
                             cell[a] = cell[a].wrapping_add_signed(step[a]);
