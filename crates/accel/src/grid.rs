@@ -574,25 +574,38 @@ impl Grid {
                 }
                 &[]
             };
-            let mut block = [0u32; BLOCK];
-            let mut n = 0;
-            for (k, &p) in here.iter().enumerate() {
-                // (`p` is below the count of primitives, at most `u32::MAX`.)
-                let key = p.wrapping_add(1);
-                let seen = std::mem::replace(&mut tested[p as usize % MAILBOX_SLOTS], key) == key;
-                if !seen {
-                    counter.prim();
-                    block[n] = p;
-                    n += 1;
-                }
-                if n > 0 && (n == BLOCK || k + 1 == here.len()) {
-                    let tmax = list(&block[..n]);
-                    if tmax < ray.tmin() {
-                        return;
+            // Blocks of up to `BLOCK` untested primitives, each filled by
+            // a loop with no call in it (the test, a call, comes after):
+            // with the call inside, the walk reloaded five of its values
+            // at every primitive. Callgrind, bunny00's random rays, 2,434
+            // -> 2,168 instructions a ray; `raymesh-ab --accel grid`,
+            // bunny00 and the dragon, both ways, 1.02-1.15x.
+            let mut rest = here.iter();
+            loop {
+                let mut block = [0u32; BLOCK];
+                let mut n = 0;
+                for &p in rest.by_ref() {
+                    // (`p` is below the count of primitives, at most `u32::MAX`.)
+                    let key = p.wrapping_add(1);
+                    let seen =
+                        std::mem::replace(&mut tested[p as usize % MAILBOX_SLOTS], key) == key;
+                    if !seen {
+                        counter.prim();
+                        block[n] = p;
+                        n += 1;
+                        if n == BLOCK {
+                            break;
+                        }
                     }
-                    bound = cull_bound(tmax);
-                    n = 0;
                 }
+                if n == 0 {
+                    break;
+                }
+                let tmax = list(&block[..n]);
+                if tmax < ray.tmin() {
+                    return;
+                }
+                bound = cull_bound(tmax);
             }
             let a = if next[0] <= next[1] && next[0] <= next[2] {
                 0
