@@ -196,6 +196,23 @@ pub trait Primitives: Send + Sync {
         let mask = intersect_each(self, |k| ids[k], 0..ids.len(), ray, tmax, &mut out);
         (mask, out)
     }
+    /// [`Self::intersect_ids`] inside a traversal compiled for AVX2 (the
+    /// `Avx2` proof), with `pre` = [`Self::block_ray`] of the same
+    /// primitives and `ray`: the same results. Triangles inline their
+    /// kernel there with nothing recomputed per block; the default calls
+    /// [`Self::intersect_ids`].
+    #[inline(always)]
+    fn intersect_ids_pre(
+        &self,
+        avx: Avx2,
+        pre: &BlockRay,
+        ids: &[u32],
+        ray: &Ray,
+        tmax: f32,
+    ) -> (u32, BlockHits) {
+        let _ = (avx, pre);
+        self.intersect_ids(ids, ray, tmax)
+    }
     /// Whether [`Self::intersect_block`] tests a block at once (a SIMD
     /// kernel) rather than one by one: then a binary BVH's SAH counts its
     /// leaves in blocks (see [`crate::BuildConfig::leaf_block`]).
@@ -799,6 +816,27 @@ impl Primitives for Triangles {
         );
     }
     #[inline(always)]
+    fn intersect_ids_pre(
+        &self,
+        avx: Avx2,
+        pre: &BlockRay,
+        ids: &[u32],
+        ray: &Ray,
+        tmax: f32,
+    ) -> (u32, BlockHits) {
+        let ids = &ids[..ids.len().min(BLOCK)];
+        #[cfg(target_arch = "x86_64")]
+        if let Some(block) =
+            crate::simd::triangles8_list_pre(avx, self.data(), self.len, ids, pre, tmax)
+        {
+            return redo_lanes(self, |k| ids[k], block, ray, tmax);
+        }
+        let _ = (avx, pre);
+        let mut out = BlockHits::default();
+        let mask = intersect_each(self, |k| ids[k], 0..ids.len(), ray, tmax, &mut out);
+        (mask, out)
+    }
+    #[inline(always)]
     fn intersect_ids(&self, ids: &[u32], ray: &Ray, tmax: f32) -> (u32, BlockHits) {
         let ids = &ids[..ids.len().min(BLOCK)];
         #[cfg(target_arch = "x86_64")]
@@ -1045,6 +1083,17 @@ impl<P: Primitives + ?Sized> Primitives for &P {
     #[inline(always)]
     fn intersect_ids(&self, ids: &[u32], ray: &Ray, tmax: f32) -> (u32, BlockHits) {
         (**self).intersect_ids(ids, ray, tmax)
+    }
+    #[inline(always)]
+    fn intersect_ids_pre(
+        &self,
+        avx: Avx2,
+        pre: &BlockRay,
+        ids: &[u32],
+        ray: &Ray,
+        tmax: f32,
+    ) -> (u32, BlockHits) {
+        (**self).intersect_ids_pre(avx, pre, ids, ray, tmax)
     }
     #[inline(always)]
     fn intersect_packet(

@@ -279,6 +279,9 @@ impl<P: Primitives> Scene<P> {
         if let (Some(WideRef::W8(bvh)), Some(avx)) = (self.wide_blocks(), Avx2::detect()) {
             return self.closest_avx2(bvh, avx, ray, counter);
         }
+        if let (Accel::Grid(_) | Accel::KdTree(_), Some(avx)) = (&self.accel, Avx2::detect()) {
+            return self.closest_lists_avx2(avx, ray, counter);
+        }
         self.closest_general(ray, counter)
     }
 
@@ -398,6 +401,88 @@ impl<P: Primitives> Scene<P> {
         // A ray the inline stack could not hold walks again, from the start
         // (with counts on, the first try's visits count too).
         done.unwrap_or_else(|| self.closest_general(ray, counter))
+    }
+
+    /// The closest hit over a grid or a k-d tree on a CPU with AVX2 (the
+    /// `Avx2` proof): the walk runs compiled for AVX2, so that the test of
+    /// a cell's or a leaf's listed triangles
+    /// ([`Primitives::intersect_ids_pre`]) inlines into it, with the ray's
+    /// constants made once a ray; from portable code it was a call a
+    /// block, which worked out the ray's shear again each time. A
+    /// function of its own (as [`Self::closest_general`]), and each walk
+    /// in an AVX2 region of its own: one region for both was too large
+    /// for LLVM to inline into the functions that set the region up, and
+    /// every intrinsic became a call.
+    #[inline(never)]
+    fn closest_lists_avx2<C: RayCounter>(
+        &self,
+        avx: Avx2,
+        ray: &Ray,
+        counter: &mut C,
+    ) -> Option<(u32, PrimHit)> {
+        if !ray.is_valid() {
+            return None;
+        }
+        // The region around one walk (a macro: the walks' `traverse_lists`
+        // are methods of different types).
+        macro_rules! region {
+            ($walk:expr) => {
+                avx_run!(avx, || {
+                    let mut best = None;
+                    let mut tmax = ray.tmax();
+                    let pre = self.prims.block_ray(ray);
+                    $walk.traverse_lists(ray, counter, &mut |ids| {
+                        self.list_closest_by(ids, &mut tmax, &mut best, |b, t| {
+                            self.prims.intersect_ids_pre(avx, &pre, b, ray, t)
+                        });
+                        tmax
+                    });
+                    best
+                })
+            };
+        }
+        match &self.accel {
+            Accel::Grid(g) => region!(g),
+            Accel::KdTree(k) => region!(k),
+            _ => self.closest_general(ray, counter),
+        }
+    }
+
+    /// [`Self::closest_lists_avx2`] for any-hit queries.
+    #[inline(never)]
+    fn any_lists_avx2<C: RayCounter>(
+        &self,
+        avx: Avx2,
+        ray: &Ray,
+        counter: &mut C,
+    ) -> Option<(u32, PrimHit)> {
+        if !ray.is_valid() {
+            return None;
+        }
+        macro_rules! region {
+            ($walk:expr) => {
+                avx_run!(avx, || {
+                    let mut found = None;
+                    let pre = self.prims.block_ray(ray);
+                    $walk.traverse_lists(ray, counter, &mut |ids| {
+                        found = self.list_any_by(ids, ray.tmax(), |b, t| {
+                            self.prims.intersect_ids_pre(avx, &pre, b, ray, t)
+                        });
+                        if found.is_some() {
+                            f32::NEG_INFINITY
+                        } else {
+                            ray.tmax()
+                        }
+                    });
+                    found
+                })
+            };
+        }
+        match &self.accel {
+            Accel::Grid(g) => region!(g),
+            Accel::KdTree(k) => region!(k),
+            _ => self.any_general(ray, counter),
+        }
     }
 
     /// [`Self::closest_avx2`] for any-hit queries, for
@@ -546,8 +631,21 @@ impl<P: Primitives> Scene<P> {
         tmax: &mut f32,
         best: &mut Option<(u32, PrimHit)>,
     ) {
+        self.list_closest_by(ids, tmax, best, |b, t| self.prims.intersect_ids(b, ray, t));
+    }
+
+    /// [`Self::list_closest`] with the block test `test(ids, tmax)`:
+    /// [`Primitives::intersect_ids`] or its AVX2 form.
+    #[inline(always)]
+    fn list_closest_by(
+        &self,
+        ids: &[u32],
+        tmax: &mut f32,
+        best: &mut Option<(u32, PrimHit)>,
+        test: impl Fn(&[u32], f32) -> (u32, BlockHits),
+    ) {
         for block in ids.chunks(BLOCK) {
-            let (mut mask, hits) = self.prims.intersect_ids(block, ray, *tmax);
+            let (mut mask, hits) = test(block, *tmax);
             while mask != 0 {
                 let k = mask.trailing_zeros() as usize;
                 mask &= mask - 1;
@@ -562,8 +660,19 @@ impl<P: Primitives> Scene<P> {
     /// hit within the ray's interval.
     #[inline(always)]
     fn list_any(&self, ray: &Ray, ids: &[u32]) -> Option<(u32, PrimHit)> {
+        self.list_any_by(ids, ray.tmax(), |b, t| self.prims.intersect_ids(b, ray, t))
+    }
+
+    /// [`Self::list_any`] with the block test `test(ids, tmax)`.
+    #[inline(always)]
+    fn list_any_by(
+        &self,
+        ids: &[u32],
+        tmax: f32,
+        test: impl Fn(&[u32], f32) -> (u32, BlockHits),
+    ) -> Option<(u32, PrimHit)> {
         ids.chunks(BLOCK).find_map(|block| {
-            let (mask, hits) = self.prims.intersect_ids(block, ray, ray.tmax());
+            let (mask, hits) = test(block, tmax);
             (mask != 0).then(|| {
                 let k = mask.trailing_zeros() as usize;
                 (block[k], hits.get(k))
@@ -594,6 +703,9 @@ impl<P: Primitives> Scene<P> {
         match (self.wide_blocks(), Avx2::detect()) {
             (Some(WideRef::W8(bvh)), Some(avx)) => self.any_avx2(bvh, avx, ray, counter),
             (Some(WideRef::W2(bvh)), Some(avx)) => self.any_binary_avx2(bvh, avx, ray, counter),
+            (None, Some(avx)) if matches!(self.accel, Accel::Grid(_) | Accel::KdTree(_)) => {
+                self.any_lists_avx2(avx, ray, counter)
+            }
             _ => self.any_general(ray, counter),
         }
     }

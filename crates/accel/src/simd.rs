@@ -1290,15 +1290,8 @@ pub(crate) fn triangles8_list(
     tmax: f32,
 ) -> Option<(u32, u32, BlockHits)> {
     let ids = &ids[..ids.len().min(GROUP_SLOTS)];
-    let &first = ids.first()?;
-    if len.div_ceil(GROUP_SLOTS) * GROUP > data.len() || ids.iter().any(|&i| i as usize >= len) {
-        return None;
-    }
+    let slots = list_slots(data, len, ids)?;
     assert!(cpu_has_avx2());
-    let slots: [usize; 8] = std::array::from_fn(|k| {
-        let i = *ids.get(k).unwrap_or(&first) as usize;
-        (i / GROUP_SLOTS) * GROUP + i % GROUP_SLOTS
-    });
     // SAFETY: each slot is an id's lane in row 0 of its group, which lies
     // in `data` (checked), and the rows read are at most 64 floats on
     // (`kernel_row`), within the group; the CPU has AVX2 (asserted).
@@ -1306,25 +1299,67 @@ pub(crate) fn triangles8_list(
     Some(active_lanes(hit, ids.len(), out))
 }
 
-/// The rows and the kernel of [`triangles8_list`].
+/// [`triangles8_list`] inside a traversal compiled for AVX2 (the `Avx2`
+/// proof), with the ray's constants made once a ray ([`BlockRay`]): the
+/// kernel then inlines into the walk (a grid's or a k-d tree's) with
+/// nothing redone per block, where [`triangles8_list`] is a call that
+/// works out the ray's shear again each time. The same results, bit for
+/// bit.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) fn triangles8_list_pre(
+    _avx: Avx2,
+    data: &[f32],
+    len: usize,
+    ids: &[u32],
+    tr: &BlockRay,
+    tmax: f32,
+) -> Option<(u32, u32, BlockHits)> {
+    let ids = &ids[..ids.len().min(GROUP_SLOTS)];
+    let slots = list_slots(data, len, ids)?;
+    // SAFETY: as in `triangles8_list`: each slot is an id's lane in row 0
+    // of its group, within `data` (checked by `list_slots`), and a
+    // `BlockRay`'s row offsets are at most 64 (its axes come from
+    // `kernel_axes`, or are zero by default); the CPU has AVX2 (the
+    // `Avx2` proof).
+    let (hit, out) = unsafe {
+        let block = list_rows(data.as_ptr(), &slots, tr.axes);
+        triangles8_loaded(&block, tr.shear, tr.origin, tr.tmin, tmax)
+    };
+    Some(active_lanes(hit, ids.len(), out))
+}
+
+/// Each listed triangle's lane in row 0 of its group (`ids` not empty, at
+/// most 8; lanes past them repeat the first), or `None` where an id is out
+/// of range or the rows do not hold `len` triangles' groups.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn list_slots(data: &[f32], len: usize, ids: &[u32]) -> Option<[usize; 8]> {
+    let &first = ids.first()?;
+    if len.div_ceil(GROUP_SLOTS) * GROUP > data.len() || ids.iter().any(|&i| i as usize >= len) {
+        return None;
+    }
+    Some(std::array::from_fn(|k| {
+        let i = *ids.get(k).unwrap_or(&first) as usize;
+        (i / GROUP_SLOTS) * GROUP + i % GROUP_SLOTS
+    }))
+}
+
+/// The kernel's 9 rows of the triangles at `slots` (see
+/// [`triangles8_list`]), row `r` read at `kernel_row(r, axes)`, one float
+/// a lane.
 ///
 /// # Safety
 /// The CPU must have AVX2; for each lane `k`, `rows.add(slots[k] + o)`
-/// must address a readable float for every row offset `o` of at most 64
-/// (a row's offset, [`kernel_row`], is at most 64).
+/// must address a readable float for every row offset `o` of at most 64.
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-#[inline]
-unsafe fn triangles8_list_avx(
+#[inline(always)]
+unsafe fn list_rows(
     rows: *const f32,
     slots: &[usize; 8],
-    ray: &Ray,
-    tmax: f32,
-) -> (u32, BlockHits) {
+    axes: [usize; 3],
+) -> [std::arch::x86_64::__m256; 9] {
     use std::arch::x86_64::*;
-    let (s, k) = ray.shear();
-    let o = ray.permute(ray.origin());
-    let axes = kernel_axes(k);
     // SAFETY: as this function's contract.
     unsafe {
         macro_rules! row {
@@ -1342,7 +1377,7 @@ unsafe fn triangles8_list_avx(
                 )
             }};
         }
-        let block = [
+        [
             row!(0),
             row!(1),
             row!(2),
@@ -1352,7 +1387,31 @@ unsafe fn triangles8_list_avx(
             row!(6),
             row!(7),
             row!(8),
-        ];
+        ]
+    }
+}
+
+/// The rows and the kernel of [`triangles8_list`].
+///
+/// # Safety
+/// The CPU must have AVX2; for each lane `k`, `rows.add(slots[k] + o)`
+/// must address a readable float for every row offset `o` of at most 64
+/// (a row's offset, [`kernel_row`], is at most 64).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn triangles8_list_avx(
+    rows: *const f32,
+    slots: &[usize; 8],
+    ray: &Ray,
+    tmax: f32,
+) -> (u32, BlockHits) {
+    let (s, k) = ray.shear();
+    let o = ray.permute(ray.origin());
+    let axes = kernel_axes(k);
+    // SAFETY: as this function's contract.
+    unsafe {
+        let block = list_rows(rows, slots, axes);
         triangles8_loaded(&block, s.to_array(), o.to_array(), ray.tmin(), tmax)
     }
 }
@@ -2222,6 +2281,11 @@ mod tests {
                 let ids: Vec<u32> = (2..10).collect();
                 let (mask, out) = tris.intersect_ids(&ids, &ray, f32::INFINITY);
                 lanes_match(mask, &out, want).expect("intersect_ids");
+                if let Some(avx) = Avx2::detect() {
+                    let pre = tris.block_ray(&ray);
+                    let (mask, out) = tris.intersect_ids_pre(avx, &pre, &ids, &ray, f32::INFINITY);
+                    lanes_match(mask, &out, want).expect("intersect_ids_pre");
+                }
             }
         }
     }
@@ -2393,7 +2457,9 @@ mod tests {
 
         /// Triangles named by a list (a k-d tree's leaf, a grid cell;
         /// repeats allowed) gathered into a block give what the scalar
-        /// test gives each, lane by lane, bit for bit.
+        /// test gives each, lane by lane, bit for bit: by
+        /// `intersect_ids`, and by its AVX2 form with the ray's
+        /// constants made before (`intersect_ids_pre`, the walks' own).
         #[test]
         fn gathered_triangles_match_scalar(
             tris in proptest::collection::vec(
@@ -2405,11 +2471,18 @@ mod tests {
             let corners: Vec<[Vec3; 3]> = tris.iter().map(|&(a, b, c)| [a, b, c]).collect();
             let tris = crate::Triangles::from_corners(&corners);
             let ray = Ray::new(o, d, tmin, f32::INFINITY);
-            let (mask, out) = crate::Primitives::intersect_ids(&tris, &ids, &ray, tmax);
-            lanes_match(mask, &out, |k| {
+            let want = |k: usize| {
                 let [a, b, c] = corners[*ids.get(k)? as usize];
                 raymesh_geometry::intersect_triangle(&ray, tmax, a, b, c)
-            })?;
+            };
+            let (mask, out) = crate::Primitives::intersect_ids(&tris, &ids, &ray, tmax);
+            lanes_match(mask, &out, want)?;
+            if let Some(avx) = Avx2::detect() {
+                let pre = crate::Primitives::block_ray(&tris, &ray);
+                let (mask, out) =
+                    crate::Primitives::intersect_ids_pre(&tris, avx, &pre, &ids, &ray, tmax);
+                lanes_match(mask, &out, want)?;
+            }
         }
     }
 }
