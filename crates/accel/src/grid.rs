@@ -575,10 +575,11 @@ impl Grid {
                 &[]
             };
             // Blocks of up to `BLOCK` untested primitives, each filled by
-            // a loop with no call in it (the test, a call, comes after):
-            // with the call inside, the walk reloaded five of its values
-            // at every primitive. Callgrind, bunny00's random rays, 2,434
-            // -> 2,168 instructions a ray; `raymesh-ab --accel grid`,
+            // a loop with no call in it (the test comes after; from the
+            // portable walk it is a call): with the call inside, the walk
+            // reloaded five of its values at every primitive. Callgrind,
+            // bunny00's random rays, 2,434 -> 2,168 instructions a ray in
+            // the walk without the test; `raymesh-ab --accel grid`,
             // bunny00 and the dragon, both ways, 1.02-1.15x.
             let mut rest = here.iter();
             loop {
