@@ -280,7 +280,7 @@ impl<P: Primitives> Scene<P> {
             return self.closest_avx2(bvh, avx, ray, counter);
         }
         if let (Accel::Grid(_) | Accel::KdTree(_), Some(avx)) = (&self.accel, Avx2::detect()) {
-            return self.closest_lists_avx2(avx, ray, counter);
+            return self.lists_avx2::<false, C>(avx, ray, counter);
         }
         self.closest_general(ray, counter)
     }
@@ -403,18 +403,18 @@ impl<P: Primitives> Scene<P> {
         done.unwrap_or_else(|| self.closest_general(ray, counter))
     }
 
-    /// The closest hit over a grid or a k-d tree on a CPU with AVX2 (the
-    /// `Avx2` proof): the walk runs compiled for AVX2, so that the test of
-    /// a cell's or a leaf's listed triangles
-    /// ([`Primitives::intersect_ids_pre`]) inlines into it, with the ray's
-    /// constants made once a ray; from portable code it was a call a
-    /// block, which worked out the ray's shear again each time. A
+    /// The closest hit (or, `ANY`, the first hit found) over a grid or a
+    /// k-d tree on a CPU with AVX2 (the `Avx2` proof): the walk runs
+    /// compiled for AVX2, so that the test of a cell's or a leaf's listed
+    /// triangles ([`Primitives::intersect_ids_pre`]) inlines into it, with
+    /// the ray's constants made once a ray; from portable code it was a
+    /// call a block, which worked out the ray's shear again each time. A
     /// function of its own (as [`Self::closest_general`]), and each walk
     /// in an AVX2 region of its own: one region for both was too large
     /// for LLVM to inline into the functions that set the region up, and
     /// every intrinsic became a call.
     #[inline(never)]
-    fn closest_lists_avx2<C: RayCounter>(
+    fn lists_avx2<const ANY: bool, C: RayCounter>(
         &self,
         avx: Avx2,
         ray: &Ray,
@@ -431,11 +431,19 @@ impl<P: Primitives> Scene<P> {
                     let mut best = None;
                     let mut tmax = ray.tmax();
                     let pre = self.prims.block_ray(ray);
+                    let test = |b: &[u32], t| self.prims.intersect_ids_pre(avx, &pre, b, ray, t);
                     $walk.traverse_lists(ray, counter, &mut |ids| {
-                        self.list_closest_by(ids, &mut tmax, &mut best, |b, t| {
-                            self.prims.intersect_ids_pre(avx, &pre, b, ray, t)
-                        });
-                        tmax
+                        if ANY {
+                            best = self.list_any_by(ids, ray.tmax(), test);
+                            if best.is_some() {
+                                f32::NEG_INFINITY
+                            } else {
+                                ray.tmax()
+                            }
+                        } else {
+                            self.list_closest_by(ids, &mut tmax, &mut best, test);
+                            tmax
+                        }
                     });
                     best
                 })
@@ -444,44 +452,8 @@ impl<P: Primitives> Scene<P> {
         match &self.accel {
             Accel::Grid(g) => region!(g),
             Accel::KdTree(k) => region!(k),
+            _ if ANY => self.any_general(ray, counter),
             _ => self.closest_general(ray, counter),
-        }
-    }
-
-    /// [`Self::closest_lists_avx2`] for any-hit queries.
-    #[inline(never)]
-    fn any_lists_avx2<C: RayCounter>(
-        &self,
-        avx: Avx2,
-        ray: &Ray,
-        counter: &mut C,
-    ) -> Option<(u32, PrimHit)> {
-        if !ray.is_valid() {
-            return None;
-        }
-        macro_rules! region {
-            ($walk:expr) => {
-                avx_run!(avx, || {
-                    let mut found = None;
-                    let pre = self.prims.block_ray(ray);
-                    $walk.traverse_lists(ray, counter, &mut |ids| {
-                        found = self.list_any_by(ids, ray.tmax(), |b, t| {
-                            self.prims.intersect_ids_pre(avx, &pre, b, ray, t)
-                        });
-                        if found.is_some() {
-                            f32::NEG_INFINITY
-                        } else {
-                            ray.tmax()
-                        }
-                    });
-                    found
-                })
-            };
-        }
-        match &self.accel {
-            Accel::Grid(g) => region!(g),
-            Accel::KdTree(k) => region!(k),
-            _ => self.any_general(ray, counter),
         }
     }
 
@@ -704,7 +676,7 @@ impl<P: Primitives> Scene<P> {
             (Some(WideRef::W8(bvh)), Some(avx)) => self.any_avx2(bvh, avx, ray, counter),
             (Some(WideRef::W2(bvh)), Some(avx)) => self.any_binary_avx2(bvh, avx, ray, counter),
             (None, Some(avx)) if matches!(self.accel, Accel::Grid(_) | Accel::KdTree(_)) => {
-                self.any_lists_avx2(avx, ray, counter)
+                self.lists_avx2::<true, C>(avx, ray, counter)
             }
             _ => self.any_general(ray, counter),
         }
