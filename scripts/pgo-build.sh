@@ -61,6 +61,16 @@ train() {
                 "$bin/raymesh" raycast "$m" --rays "$work/$mesh-$w.npy" --accel bvh8 $mode --any-hit --threads 1 >/dev/null
             done
         done
+        # The grid's and the k-d tree's walks (AVX2 regions of their own:
+        # left out of the training, LLVM compiled them as cold and left
+        # their closures out of line, every kernel intrinsic a call).
+        for accel in grid kdtree; do
+            for w in primary random; do
+                "$bin/raymesh" raycast "$m" --rays "$work/$mesh-$w.npy" --accel "$accel" --threads 1 >/dev/null
+                "$bin/raymesh" raycast "$m" --rays "$work/$mesh-$w.npy" --accel "$accel" --any-hit --threads 1 >/dev/null
+            done
+            "$bin/raymesh" render "$m" --accel "$accel" --width 80 --height 60 --threads 1 -o "$work/$mesh-$accel.png" >/dev/null
+        done
         "$bin/raymesh" render "$m" --width 160 --height 120 --threads 1 -o "$work/$mesh.png" >/dev/null
         # The counting walks: a heat map, and the counts `--stats` adds.
         "$bin/raymesh" render "$m" --heatmap --width 80 --height 60 --threads 1 -o "$work/$mesh-heat.png" >/dev/null
@@ -73,6 +83,10 @@ train() {
                     # shellcheck disable=SC2086
                     "$bin/raymesh-ab" "$m" --accel bvh8 --workload "$w" --size 256 --rounds 1 $mode >/dev/null
                 done
+            done
+            for accel in grid kdtree; do
+                "$bin/raymesh-peers" "$m" --peers none --accel "$accel" --threads 1 --size 128 >/dev/null
+                "$bin/raymesh-ab" "$m" --accel "$accel" --workload random --size 128 --rounds 1 >/dev/null
             done
         fi
     done
