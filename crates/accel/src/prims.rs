@@ -831,10 +831,10 @@ impl Primitives for Triangles {
         {
             return redo_lanes(self, |k| ids[k], block, ray, tmax);
         }
+        // Ids out of range, or rows that do not hold the triangles: what
+        // the plain test does with them.
         let _ = (avx, pre);
-        let mut out = BlockHits::default();
-        let mask = intersect_each(self, |k| ids[k], 0..ids.len(), ray, tmax, &mut out);
-        (mask, out)
+        self.intersect_ids(ids, ray, tmax)
     }
     #[inline(always)]
     fn intersect_ids(&self, ids: &[u32], ray: &Ray, tmax: f32) -> (u32, BlockHits) {
