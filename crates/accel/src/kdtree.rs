@@ -699,6 +699,52 @@ mod tests {
         }
     }
 
+    /// The binning counts, per bin and axis, the boxes that start and end
+    /// in each bin, whatever the number of boxes and of bins; boxes past
+    /// either end land in the end bins.
+    #[test]
+    fn binning_counts_each_box_once() {
+        let config = BuildConfig::default();
+        let clip = |_, within: Aabb, axis, pos| within.split(axis, pos);
+        let b = Builder {
+            config: &config,
+            clip: &clip,
+            max_depth: MAX_DEPTH - 1,
+            par_subtree: PAR_SUBTREE,
+            block: 1,
+        };
+        let boxes = crate::test_util::clustered_boxes(101);
+        let bounds = boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(*b));
+        let mut bins = BinCounts::default();
+        for n in [0, 1, 2, 7, 100, 101] {
+            let ids: Vec<Ref> = boxes[..n]
+                .iter()
+                .enumerate()
+                .map(|(i, &b)| Ref { id: i as u32, b })
+                .collect();
+            for nb in [2, 16, 255] {
+                // A box a little inside the bounds, so that some boxes
+                // fall outside it at each end.
+                let origin = bounds.min + bounds.extent() * 0.1;
+                let scale = Vec3::splat(nb as f32) / (bounds.extent() * 0.8);
+                b.bin(&ids, origin, scale, nb, &mut bins);
+                let mut want = [vec![[0u32; 3]; nb + 1], vec![[0u32; 3]; nb + 1]];
+                let at = |x: f32, axis: usize| {
+                    let k = ((x - origin[axis]) * scale[axis]).clamp(0.0, nb as f32);
+                    k as usize
+                };
+                for r in &ids {
+                    for axis in 0..3 {
+                        want[0][at(r.b.min[axis], axis)][axis] += 1;
+                        want[1][at(r.b.max[axis], axis)][axis] += 1;
+                    }
+                }
+                assert_eq!(bins.0, want[0], "starts, {n} boxes, {nb} bins");
+                assert_eq!(bins.1, want[1], "ends, {n} boxes, {nb} bins");
+            }
+        }
+    }
+
     /// Diagonal slivers, whose boxes overlap most of the scene: known by
     /// their boxes, no split pays and the tree stays shallow; clipped at
     /// each plane, a triangle goes only to the cells its shape reaches,
