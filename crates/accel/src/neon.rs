@@ -48,6 +48,7 @@ mod q {
         sub(x: F, y: F) -> F = vsubq_f32;
         mul(x: F, y: F) -> F = vmulq_f32;
         div(x: F, y: F) -> F = vdivq_f32;
+        abs(x: F) -> F = vabsq_f32;
         splat(x: f32) -> F = vdupq_n_f32;
         eq(x: F, y: F) -> M = vceqq_f32;
         lt(x: F, y: F) -> M = vcltq_f32;
@@ -141,9 +142,9 @@ pub(crate) fn slab8<const W: usize>(
 /// [`crate::simd::triangles8`] does it with AVX2: slots `first..first +
 /// count` of rows grouped as [`crate::Triangles`] lays them out; lanes
 /// past `count` are ignored. Returns the mask of lanes hit (their `t`,
-/// `u`, `v` in the hits), and the mask of lanes whose edge function
-/// rounded to exactly zero, which need the scalar test's f64 path and
-/// are not in the hit mask. The same bits as the scalar test. Panics if a
+/// `u`, `v` in the hits), and the mask of lanes the scalar test redoes in
+/// f64 ([`raymesh_geometry::needs_f64`]: an edge function of exactly
+/// zero, values out of `f32`'s range), which are not in the hit mask. The same bits as the scalar test. Panics if a
 /// row would be read past `data`.
 #[inline(always)]
 pub(crate) fn triangles8(
@@ -229,8 +230,20 @@ pub(crate) fn triangles8(
                 q::and(q::ge(t, t_lo), q::le(t, t_hi)),
                 q::or(edge_on, q::and(any_neg, any_pos)),
             );
+            // The lanes the scalar test redoes in f64 (`needs_f64`, the
+            // same `f32` values): an edge function of zero, `|det| +
+            // |t_scaled|` not below infinity (NaN included), or, inside,
+            // either below the least normal float.
+            let (ad, at) = (q::abs(det), q::abs(t_scaled));
+            let least = q::splat(f32::MIN_POSITIVE);
+            let big = q::not(q::lt(q::add(ad, at), q::splat(f32::INFINITY)));
+            let small = q::or(q::lt(ad, least), q::lt(at, least));
+            let redo_lanes = q::or(
+                flat,
+                q::or(big, q::and_not(small, q::and(any_neg, any_pos))),
+            );
             hit |= q::bits(ok) << half;
-            redo |= q::bits(flat) << half;
+            redo |= q::bits(redo_lanes) << half;
             q::store(&mut out.t, half, t);
             q::store(&mut out.u, half, q::mul(v, inv_det));
             q::store(&mut out.v, half, q::mul(w, inv_det));

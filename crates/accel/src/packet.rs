@@ -20,8 +20,8 @@
 
 use crate::{BlockHits, PrimHit};
 use raymesh_geometry::{
-    exit_reciprocal, intersect_triangle, max_nan_second as max_ns, min_nan_second as min_ns, Ray,
-    RayLanes8, Rays8, Vec3, Vec4,
+    exit_reciprocal, intersect_triangle, max_nan_second as max_ns, min_nan_second as min_ns,
+    needs_f64, Ray, RayLanes8, Rays8, Vec3, Vec4,
 };
 use std::cell::OnceCell;
 
@@ -478,8 +478,9 @@ pub(crate) fn lane_mask(b: &[bool; LANES]) -> u32 {
 /// [`raymesh_geometry::intersect_triangle`] for every lane of the packet
 /// against one triangle, each lane over `[tmin, tmax[lane]]`: writes the
 /// hits of the lanes in `lanes` to `out` and returns their mask. Lanes
-/// whose edge function rounds to exactly zero take the scalar test (its
-/// f64 path), as the single-ray kernels do.
+/// the scalar test redoes in f64 ([`needs_f64`]: an edge function of
+/// exactly zero, values out of `f32`'s range) take the scalar test, as
+/// the single-ray kernels do.
 #[inline]
 pub(crate) fn triangle(
     p: &Packet8,
@@ -543,8 +544,8 @@ pub(crate) fn triangle_run_loop(
 }
 
 /// [`triangle`]'s body with the lanes' test `kernel` ([`lanes_portable`]
-/// or its AVX2 form): the lanes it hits written to `out`, those whose
-/// edge functions rounded to zero redone with the scalar test's f64 path.
+/// or its AVX2 form): the lanes it hits written to `out`, those the
+/// scalar test would redo in f64 ([`needs_f64`]) redone by it.
 #[inline(always)]
 pub(crate) fn triangle_lanes(
     p: &Packet8,
@@ -587,8 +588,9 @@ pub(crate) fn triangle_lanes(
 
 /// The eight lanes' test of one triangle (corners `c`, axes in the
 /// packet's order `k`), in plain Rust: the mask of lanes inside with `t`
-/// in their interval, the mask of lanes whose edge functions rounded to
-/// exactly zero, and each lane's `t`, `u`, `v`. The AVX2 kernel
+/// in their interval, the mask of lanes the scalar test redoes in f64
+/// ([`needs_f64`]: an edge function of zero, values out of `f32`'s
+/// range), and each lane's `t`, `u`, `v`. The AVX2 kernel
 /// (`simd::packet_lanes_avx`) makes the same operations in the same order.
 #[inline(always)]
 pub(crate) fn lanes_portable(
@@ -612,10 +614,10 @@ pub(crate) fn lanes_portable(
         let v = ax * cy - ay * cx;
         let w = bx * ay - by * ax;
         // `|` and `&`, not `||` and `&&`: no branches, so the lanes vectorize.
-        redo[i] = (u == 0.0) | (v == 0.0) | (w == 0.0);
         let outside = ((u < 0.0) | (v < 0.0) | (w < 0.0)) & ((u > 0.0) | (v > 0.0) | (w > 0.0));
         let det = u + v + w;
         let t_scaled = u * (s[2] * a[2]) + v * (s[2] * b[2]) + w * (s[2] * cc[2]);
+        redo[i] = needs_f64(u, v, w, det, t_scaled, outside);
         let inv_det = 1.0 / det;
         h.t[i] = t_scaled * inv_det;
         h.u[i] = v * inv_det;
@@ -756,26 +758,42 @@ mod tests {
     }
 
     /// Each lane's triangle test gives the scalar test's hit, bit for bit,
-    /// edge-on and corner-through cases included.
+    /// edge-on and corner-through cases included, and scenes scaled by
+    /// 2^±50 and 2^±100 (where the scalar test redoes lanes in f64 for
+    /// their range: `needs_f64`).
     #[test]
     fn packet_triangle_matches_the_scalar_test() {
         let mut f = rng(11);
         for n in 0..2000 {
-            let rays = coherent(&mut f);
+            let scale = match n % 10 {
+                1 => 2f32.powi(50),
+                2 => 2f32.powi(-50),
+                3 => 2f32.powi(100),
+                4 => 2f32.powi(-100),
+                _ => 1.0,
+            };
+            let rays = coherent(&mut f).map(|r| {
+                Ray::new(
+                    r.origin() * scale,
+                    r.dir(),
+                    r.tmin() * scale,
+                    r.tmax() * scale,
+                )
+            });
             let p = Packet8::new(&rays).expect("one octant and axis order");
             let mut tri = [
-                Vec3::new(f(), f(), f()) + Vec3::X * 3.0,
-                Vec3::new(f(), f(), f()) + Vec3::X * 3.0,
-                Vec3::new(f(), f(), f()) + Vec3::X * 3.0,
+                (Vec3::new(f(), f(), f()) + Vec3::X * 3.0) * scale,
+                (Vec3::new(f(), f(), f()) + Vec3::X * 3.0) * scale,
+                (Vec3::new(f(), f(), f()) + Vec3::X * 3.0) * scale,
             ];
             if n % 7 == 0 {
                 // Through the first ray's origin: edge functions of zero.
-                tri[0] = rays[0].origin() + rays[0].dir() * 2.0;
+                tri[0] = rays[0].origin() + rays[0].dir() * 2.0 * scale;
             }
             if n % 11 == 0 {
                 tri[2] = tri[1]; // degenerate
             }
-            let tmax: [f32; LANES] = std::array::from_fn(|_| f().abs() * 10.0);
+            let tmax: [f32; LANES] = std::array::from_fn(|_| f().abs() * 10.0 * scale);
             let lanes = if n % 3 == 0 { 0xff } else { 0b1010_1101 };
             for simd in [true, false] {
                 crate::set_simd_enabled(simd);

@@ -320,8 +320,9 @@ fn intersect_each<P: Primitives + ?Sized>(
 }
 
 /// A SIMD block test's result `(mask, redo, out)` completed: the lanes
-/// in `redo`, whose edge function rounded to exactly zero, take the
-/// scalar test's f64 path (lane `k` is primitive `prim(k)`).
+/// in `redo`, which the scalar test redoes in f64
+/// ([`raymesh_geometry::needs_f64`]), take the scalar test (lane `k` is
+/// primitive `prim(k)`).
 #[cfg(any(
     target_arch = "x86_64",
     all(target_arch = "aarch64", target_feature = "neon")

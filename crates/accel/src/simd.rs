@@ -830,6 +830,32 @@ unsafe fn packet_triangle_impl(
     })
 }
 
+/// The lanes [`raymesh_geometry::needs_f64`] redoes in f64 for their
+/// range, from `det` and `t_scaled`: where `|det| + |t_scaled|` is not
+/// below infinity (NaN included), and, outside the sign bits of
+/// `outside`, where either is below the least normal float. The same
+/// `f32` operations as the scalar test's, so the same lanes. (The zero
+/// edge functions' lanes the callers add themselves.)
+///
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn range_redo(
+    det: std::arch::x86_64::__m256,
+    t_scaled: std::arch::x86_64::__m256,
+    outside: std::arch::x86_64::__m256,
+) -> std::arch::x86_64::__m256 {
+    use std::arch::x86_64::*;
+    let abs = _mm256_castsi256_ps(_mm256_set1_epi32(i32::MAX));
+    let (ad, at) = (_mm256_and_ps(det, abs), _mm256_and_ps(t_scaled, abs));
+    let least = _mm256_set1_ps(f32::MIN_POSITIVE);
+    let big = _mm256_cmp_ps::<_CMP_NLT_UQ>(_mm256_add_ps(ad, at), _mm256_set1_ps(f32::INFINITY));
+    // (`min` gives `at` where either is NaN, a lane `big` holds already.)
+    let small = _mm256_cmp_ps::<_CMP_LT_OQ>(_mm256_min_ps(ad, at), least);
+    _mm256_or_ps(big, _mm256_andnot_ps(outside, small))
+}
+
 /// [`crate::packet::lanes_portable`] in AVX2, one ray a lane: the same
 /// operations in the same order (no fused multiply-add), so the same
 /// masks and, for the lanes hit, the same bits of `t`, `u`, `v` (when no
@@ -901,7 +927,11 @@ unsafe fn packet_lanes_avx(
     );
     // Every lane outside (the most of a leaf's triangles, for most
     // packets): no lane can hit, so neither the division nor the hits are
-    // worked out; lanes to redo stay so.
+    // worked out; lanes to redo stay so. (A lane outside by these
+    // comparisons is outside whatever `needs_f64` says of its range:
+    // strict comparisons are false for NaN, and an edge function that
+    // overflowed to an infinity keeps its sign. The scalar test's `f64`
+    // redo finds it outside too.)
     if _mm256_movemask_ps(outside) == 0xff {
         return (0, _mm256_movemask_ps(redo) as u32, BlockHits::default());
     }
@@ -913,6 +943,7 @@ unsafe fn packet_lanes_avx(
         ),
         _mm256_mul_ps(w, _mm256_mul_ps(s2, cz)),
     );
+    let redo = _mm256_or_ps(redo, range_redo(det, t_scaled, outside));
     let inv_det = _mm256_div_ps(_mm256_set1_ps(1.0), det);
     let t = _mm256_mul_ps(t_scaled, inv_det);
     // Inside, `det` neither 0 nor NaN (an ordered compare), `t` in the
@@ -1237,8 +1268,9 @@ fn block_reach(span: usize) -> usize {
 /// lays them out ([`block_at`]); lanes past `count` are ignored. Returns
 /// the mask of lanes hit (their `t`, `u`, `v` written to `out`) and the
 /// mask of lanes left for the scalar test's f64 path, which is empty: the
-/// kernel redoes a lane's edge functions in f64 itself where one rounded
-/// to exactly zero (the NEON kernel leaves them to the caller). Panics
+/// kernel redoes in f64 itself the lanes the scalar test would
+/// ([`raymesh_geometry::needs_f64`]; the NEON kernel leaves them to the
+/// caller). Panics
 /// if a row would be read past `data` or the CPU lacks AVX2.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
@@ -1760,9 +1792,11 @@ unsafe fn triangles8_avx(
 /// The kernel itself, inlined into its caller: called from code compiled
 /// for AVX2 (`triangles8_avx`, or a traversal under `with_avx2`) its
 /// intrinsics inline too. Returns the mask of lanes hit and their hits.
-/// Lanes with an edge function of exactly zero are redone in f64 inside
-/// it, as the scalar test redoes them, so that nothing is left to redo
-/// (and the walks it inlines into make no call for it).
+/// The lanes the scalar test redoes in f64 ([`raymesh_geometry::needs_f64`]:
+/// an edge function of exactly zero, values out of `f32`'s range) are
+/// redone in f64 inside it, as the scalar test redoes them, so that
+/// nothing is left to redo (and the walks it inlines into make no call
+/// for it).
 ///
 /// The ray comes as its shear constants, its origin with the axes
 /// permuted, and `tmin`; row `r` of the 9 (corner `r / 3`, permuted axis
@@ -1882,112 +1916,112 @@ unsafe fn triangles8_loaded(
     let u = _mm256_sub_ps(_mm256_mul_ps(cx, by), _mm256_mul_ps(cy, bx));
     let v = _mm256_sub_ps(_mm256_mul_ps(ax, cy), _mm256_mul_ps(ay, cx));
     let w = _mm256_sub_ps(_mm256_mul_ps(bx, ay), _mm256_mul_ps(by, ax));
-    let zero = _mm256_setzero_ps();
-    let flat = _mm256_or_ps(
-        _mm256_cmp_ps::<_CMP_EQ_OQ>(u, zero),
-        _mm256_or_ps(
-            _mm256_cmp_ps::<_CMP_EQ_OQ>(v, zero),
-            _mm256_cmp_ps::<_CMP_EQ_OQ>(w, zero),
-        ),
-    );
-    // `off`: lanes that miss whatever their `t`, in their sign bits.
-    let (u, v, w, off) = if _mm256_movemask_ps(flat) == 0 {
-        // No edge function is zero: they are of both signs where `u`'s
-        // sign bit differs from `v`'s or `w`'s (three operations where
-        // the scalar test's comparisons take eleven). Its check that the
-        // plane is not edge-on (`det` neither 0 nor NaN) needs none here:
-        // the sum of three nonzero edge functions of one sign is never
-        // zero, and where it is NaN so is `t`, which the interval test
-        // below rejects.
-        (
-            u,
-            v,
-            w,
-            _mm256_or_ps(_mm256_xor_ps(u, v), _mm256_xor_ps(u, w)),
-        )
-    } else {
-        // A lane with a zero edge function (a ray through an edge or a
-        // vertex, or past a sliver) has all three redone in f64, as the
-        // scalar test does, here and not by a call: a call anywhere in a
-        // walk's loop makes the walk keep the ray's constants in memory
-        // around it (bunny00 random rays, bvh8: 29 instructions a ray).
-        // Then the scalar test's comparisons, a zero being of neither
-        // sign. Its check for an edge-on plane needs nothing here either:
-        // edge functions of one sign or zero sum to zero only when all
-        // three are zero, and then `t` is `0 * inf` or NaN, a NaN.
-
-        // `p * q - r * s` in f64, four lanes at a time (macros, not
-        // closures: see `load`).
-        macro_rules! edge {
-            ($p:expr, $q:expr, $r:expr, $s:expr) => {{
-                macro_rules! half {
-                    ($part:ident) => {
-                        _mm256_cvtpd_ps(_mm256_sub_pd(
-                            _mm256_mul_pd(_mm256_cvtps_pd($part!($p)), _mm256_cvtps_pd($part!($q))),
-                            _mm256_mul_pd(_mm256_cvtps_pd($part!($r)), _mm256_cvtps_pd($part!($s))),
-                        ))
-                    };
-                }
-                macro_rules! lo {
-                    ($x:expr) => {
-                        _mm256_castps256_ps128($x)
-                    };
-                }
-                macro_rules! hi {
-                    ($x:expr) => {
-                        _mm256_extractf128_ps::<1>($x)
-                    };
-                }
-                _mm256_set_m128(half!(hi), half!(lo))
-            }};
-        }
-        let u = _mm256_blendv_ps(u, edge!(cx, by, cy, bx), flat);
-        let v = _mm256_blendv_ps(v, edge!(ax, cy, ay, cx), flat);
-        let w = _mm256_blendv_ps(w, edge!(bx, ay, by, ax), flat);
-        let any_neg = _mm256_or_ps(
-            _mm256_cmp_ps::<_CMP_LT_OQ>(u, zero),
-            _mm256_or_ps(
-                _mm256_cmp_ps::<_CMP_LT_OQ>(v, zero),
-                _mm256_cmp_ps::<_CMP_LT_OQ>(w, zero),
-            ),
-        );
-        let any_pos = _mm256_or_ps(
-            _mm256_cmp_ps::<_CMP_GT_OQ>(u, zero),
-            _mm256_or_ps(
-                _mm256_cmp_ps::<_CMP_GT_OQ>(v, zero),
-                _mm256_cmp_ps::<_CMP_GT_OQ>(w, zero),
-            ),
-        );
-        (u, v, w, _mm256_and_ps(any_neg, any_pos))
-    };
+    // `off`: lanes that miss whatever their `t`, in their sign bits: the
+    // edge functions are of both signs where `u`'s sign bit differs from
+    // `v`'s or `w`'s (three operations where the scalar test's comparisons
+    // take eleven). Right for every lane but those with an edge function
+    // of zero or NaN, which the f64 redo below takes. Its check that the
+    // plane is not edge-on (`det` neither 0 nor NaN) needs none either:
+    // the sum of three nonzero edge functions of one sign is never zero,
+    // and a NaN is redone.
+    let off = _mm256_or_ps(_mm256_xor_ps(u, v), _mm256_xor_ps(u, w));
     let det = _mm256_add_ps(_mm256_add_ps(u, v), w);
     let t_scaled = _mm256_add_ps(
         _mm256_add_ps(_mm256_mul_ps(u, az), _mm256_mul_ps(v, bz)),
         _mm256_mul_ps(w, cz),
     );
-    let inv_det = _mm256_div_ps(_mm256_set1_ps(1.0), det);
-    let t = _mm256_mul_ps(t_scaled, inv_det);
-    // `t` in the interval (NaN fails) where nothing else rules the lane
-    // out. (`movemask` reads the sign bits only: `off`'s are the ones
-    // that matter, the comparisons' lanes are all ones or all zeros.)
-    let ok = _mm256_andnot_ps(
-        off,
-        _mm256_and_ps(
-            _mm256_cmp_ps::<_CMP_GE_OQ>(t, _mm256_set1_ps(tmin)),
-            _mm256_cmp_ps::<_CMP_LE_OQ>(t, _mm256_set1_ps(tmax)),
+    // The lanes the scalar test redoes in f64 (`needs_f64`): an edge
+    // function of exactly zero (a ray through an edge or a vertex, or past
+    // a sliver), or values out of `f32`'s range (huge or tiny scenes).
+    let zero = _mm256_setzero_ps();
+    let redo = _mm256_or_ps(
+        _mm256_or_ps(
+            _mm256_cmp_ps::<_CMP_EQ_OQ>(u, zero),
+            _mm256_or_ps(
+                _mm256_cmp_ps::<_CMP_EQ_OQ>(v, zero),
+                _mm256_cmp_ps::<_CMP_EQ_OQ>(w, zero),
+            ),
         ),
+        range_redo(det, t_scaled, off),
     );
     // The registers as they are: `__m256` and `[f32; 8]` have the same
     // size, and every bit pattern is a valid float.
     let lanes = |x: __m256| std::mem::transmute::<__m256, [f32; 8]>(x);
-    (
-        _mm256_movemask_ps(ok) as u32,
-        BlockHits {
-            t: lanes(t),
-            u: lanes(_mm256_mul_ps(v, inv_det)),
-            v: lanes(_mm256_mul_ps(w, inv_det)),
-        },
-    )
+    // The hits in f32: `t` in the interval (NaN fails) where nothing else
+    // rules the lane out. (`movemask` reads the sign bits only: `off`'s
+    // are the ones that matter, the comparisons' lanes are all ones or
+    // all zeros.) A macro, written out on both sides of the branch below,
+    // so that the common side holds none of the sheared corners past it.
+    macro_rules! in_f32 {
+        () => {{
+            let inv_det = _mm256_div_ps(_mm256_set1_ps(1.0), det);
+            let t = _mm256_mul_ps(t_scaled, inv_det);
+            let hit = _mm256_movemask_ps(_mm256_andnot_ps(
+                off,
+                _mm256_and_ps(
+                    _mm256_cmp_ps::<_CMP_GE_OQ>(t, _mm256_set1_ps(tmin)),
+                    _mm256_cmp_ps::<_CMP_LE_OQ>(t, _mm256_set1_ps(tmax)),
+                ),
+            )) as u32;
+            (
+                hit,
+                BlockHits {
+                    t: lanes(t),
+                    u: lanes(_mm256_mul_ps(v, inv_det)),
+                    v: lanes(_mm256_mul_ps(w, inv_det)),
+                },
+            )
+        }};
+    }
+    let mut m = _mm256_movemask_ps(redo) as u32;
+    if m == 0 {
+        return in_f32!();
+    }
+    let (mut hit, mut out) = in_f32!();
+    {
+        // Those lanes redone here with the scalar test's own f64 path
+        // (`raymesh_geometry::hit_f64`), lane by lane, and not by a call: a
+        // call anywhere in a walk's loop makes the walk keep the ray's
+        // constants in memory around it (bunny00 random rays, bvh8: 29
+        // instructions a ray). One loop for every lane, not four lanes
+        // at a time in AVX2: the walks this kernel inlines into must stay
+        // small enough for LLVM to inline them whole into their AVX2
+        // regions (with the f64 path unrolled over two halves they did
+        // not, and every intrinsic became a call).
+        let (ax, ay, bx, by, cx, cy) = (
+            lanes(ax),
+            lanes(ay),
+            lanes(bx),
+            lanes(by),
+            lanes(cx),
+            lanes(cy),
+        );
+        // Each corner's relative `z`, unsheared (`az` is `shear[2]` times
+        // it in f32, which may have overflowed).
+        let z = |c: usize| lanes(_mm256_sub_ps(block[3 * c + 2], oz));
+        let z = [z(0), z(1), z(2)];
+        let sz = f64::from(shear[2]);
+        let d = f64::from;
+        while m != 0 {
+            let i = m.trailing_zeros() as usize;
+            m &= m - 1;
+            let (ax, ay, bx, by, cx, cy) =
+                (d(ax[i]), d(ay[i]), d(bx[i]), d(by[i]), d(cx[i]), d(cy[i]));
+            match raymesh_geometry::hit_f64(
+                tmin,
+                tmax,
+                [cx * by - cy * bx, ax * cy - ay * cx, bx * ay - by * ax],
+                z.map(|z| sz * d(z[i])),
+            ) {
+                Some(h) => {
+                    (out.t[i], out.u[i], out.v[i]) = (h.t, h.u, h.v);
+                    hit |= 1 << i;
+                }
+                None => hit &= !(1 << i),
+            }
+        }
+    }
+    (hit, out)
 }
 
 #[cfg(all(test, target_arch = "x86_64"))]

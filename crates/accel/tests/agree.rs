@@ -354,7 +354,11 @@ fn hard_cases() {
     assert!(check_mesh(&tri_mesh(&plane), &plane_rays) > 0);
     let degenerate = [[Vec3::ZERO, Vec3::X, Vec3::X * 2.0], [Vec3::ONE; 3], unit];
     check_mesh(&tri_mesh(&degenerate), &rays);
-    for scale in [1e30f32, 1e-30, 1e12, 1e-12] {
+    // Every ray hits, at every scale (f32's products of two coordinates
+    // overflow at 1e30 and underflow at 1e-30, its products of three
+    // already at 1e15 and 1e-15; the test redoes those in f64), at the
+    // distance scaled too.
+    for scale in [1e30f32, 1e-30, 1e15, 1e-15, 1e12, 1e-12] {
         let tris: Vec<[Vec3; 3]> = plane
             .iter()
             .map(|t| t.map(|v| v * scale + Vec3::Z * scale))
@@ -369,7 +373,15 @@ fn hard_cases() {
                 Ray::infinite(p, Vec3::Z)
             })
             .collect();
-        check_mesh(&tri_mesh(&tris), &rs);
+        assert_eq!(check_mesh(&tri_mesh(&tris), &rs), rs.len(), "at {scale}");
+        let scene = Scene::build(tri_mesh(&tris), AccelKind::Brute);
+        for r in &rs {
+            let t = scene.intersect(r).map(|h| h.t / scale);
+            assert!(
+                t.is_some_and(|t| (t - 2.0).abs() < 1e-5),
+                "{t:?} at {scale}"
+            );
+        }
     }
     // Rays starting exactly on split planes and cell boundaries: lattice origins.
     let grid_tris: Vec<[Vec3; 3]> = (0..64)

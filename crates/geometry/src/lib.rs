@@ -22,4 +22,6 @@ pub use glam::{BVec4A, Mat3, Mat3A, Mat4, Quat, Vec2, Vec3, Vec3A, Vec4};
 pub use octahedral::{decode_unit, encode_unit, ZERO_UNIT};
 pub use ray::{Ray, RayLanes8, Rays8};
 pub use sphere::{intersect_sphere, Sphere, SphereHit};
-pub use triangle::{clip_triangle, intersect_triangle, triangle_area2, TriHit, Triangle};
+pub use triangle::{
+    clip_triangle, hit_f64, intersect_triangle, needs_f64, triangle_area2, TriHit, Triangle,
+};

@@ -112,9 +112,18 @@ pub fn triangle_area2(a: Vec3, b: Vec3, c: Vec3) -> f64 {
 /// edge functions are then evaluated in 2D at the origin. Edges shared by two
 /// triangles are evaluated with the same operands in both, so a ray through a
 /// shared edge or vertex hits at least one of them (never falls through a
-/// crack). An edge function that rounds to exactly zero is recomputed in f64,
-/// as the paper prescribes. Degenerate (zero-area) triangles never hit, and
-/// neither do rays in the triangle's plane. Invalid rays never hit.
+/// crack). Degenerate (zero-area) triangles never hit, and neither do rays
+/// in the triangle's plane. Invalid rays never hit.
+///
+/// Where `f32` cannot be trusted the test is redone in `f64` from the same
+/// sheared corners ([`needs_f64`]): an edge function that rounds to exactly
+/// zero, as the paper prescribes, and (beyond it) a determinant or scaled
+/// distance that overflowed, or that fell below the normal floats for a
+/// triangle the ray is inside. Corners some 10^12 units from the ray's
+/// origin make the latter's cubes overflow `f32`, and corners 10^-13
+/// apart make them underflow; in `f64` neither does, so huge and tiny
+/// scenes get the hits they have, not misses or `t = 0`. A hit whose `t`
+/// is past `f32::MAX` is no hit.
 #[inline]
 #[must_use]
 pub fn intersect_triangle(ray: &Ray, tmax: f32, p0: Vec3, p1: Vec3, p2: Vec3) -> Option<TriHit> {
@@ -130,28 +139,31 @@ pub fn intersect_triangle(ray: &Ray, tmax: f32, p0: Vec3, p1: Vec3, p2: Vec3) ->
     let cx = c.x - s.x * c.z;
     let cy = c.y - s.y * c.z;
 
-    let mut u = cx * by - cy * bx;
-    let mut v = ax * cy - ay * cx;
-    let mut w = bx * ay - by * ax;
-    if u == 0.0 || v == 0.0 || w == 0.0 {
-        let (ax, ay, bx, by, cx, cy) = (
-            ax as f64, ay as f64, bx as f64, by as f64, cx as f64, cy as f64,
-        );
-        u = (cx * by - cy * bx) as f32;
-        v = (ax * cy - ay * cx) as f32;
-        w = (bx * ay - by * ax) as f32;
-    }
-    if (u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0) {
-        return None;
-    }
+    let u = cx * by - cy * bx;
+    let v = ax * cy - ay * cx;
+    let w = bx * ay - by * ax;
+    let outside = (u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0);
     let det = u + v + w;
-    if det == 0.0 || det.is_nan() {
-        return None;
-    }
     let az = s.z * a.z;
     let bz = s.z * b.z;
     let cz = s.z * c.z;
     let t_scaled = u * az + v * bz + w * cz;
+    if needs_f64(u, v, w, det, t_scaled, outside) {
+        let d = |x: f32| f64::from(x);
+        let (ax, ay, bx, by, cx, cy) = (d(ax), d(ay), d(bx), d(by), d(cx), d(cy));
+        let sz = d(s.z);
+        return hit_f64(
+            ray.tmin(),
+            tmax,
+            [cx * by - cy * bx, ax * cy - ay * cx, bx * ay - by * ax],
+            [sz * d(a.z), sz * d(b.z), sz * d(c.z)],
+        );
+    }
+    if outside {
+        return None;
+    }
+    // Inside, all three of one sign and none zero: `det` is not zero, and
+    // (from `needs_f64`) neither NaN nor infinite.
     let inv_det = 1.0 / det;
     let t = t_scaled * inv_det;
     // `!(t >= tmin)` also rejects NaN, and an invalid ray has tmin = +inf.
@@ -162,6 +174,61 @@ pub fn intersect_triangle(ray: &Ray, tmax: f32, p0: Vec3, p1: Vec3, p2: Vec3) ->
         t,
         u: v * inv_det,
         v: w * inv_det,
+    })
+}
+
+/// Whether the `f32` test of [`intersect_triangle`] must be redone in
+/// `f64`, from its edge functions `u`, `v`, `w`, their sum `det`, the
+/// scaled distance `t_scaled` and whether the signs of the edge functions
+/// put the ray `outside` the triangle: an edge function of exactly zero
+/// (a ray through an edge or a vertex, where the sign decides
+/// watertightness), a `det` or `t_scaled` that is infinite or NaN
+/// (products past `f32::MAX`; then `outside` may be wrong too), or, for a
+/// ray inside, either below the least normal float (products that
+/// underflowed, so `t` or the barycentrics lost their precision, down to
+/// `t = 0`). The SIMD kernels redo exactly these lanes (each with the
+/// same `f32` operations), so that every kernel gives the same bits.
+#[inline(always)]
+#[must_use]
+pub fn needs_f64(u: f32, v: f32, w: f32, det: f32, t_scaled: f32, outside: bool) -> bool {
+    let (ad, at) = (det.abs(), t_scaled.abs());
+    // `|` rather than `||`: no branches, so that lanes vectorize.
+    (u == 0.0)
+        | (v == 0.0)
+        | (w == 0.0)
+        | !(ad + at < f32::INFINITY)
+        | (!outside & ((ad < f32::MIN_POSITIVE) | (at < f32::MIN_POSITIVE)))
+}
+
+/// [`intersect_triangle`]'s test redone in `f64`: from its edge functions
+/// `e` (each from the `f32` sheared corners, whose products `f64` holds
+/// exactly, so that their signs are exact) and the corners' scaled
+/// distances `z` (`shear.z` times each corner's relative `z`, exact too),
+/// the hit within `[tmin, tmax]`, if any. An edge function of zero is of
+/// neither sign. The SIMD kernels that redo lanes themselves call it too,
+/// so that their hits are the scalar test's, bit for bit.
+#[inline]
+#[must_use]
+pub fn hit_f64(tmin: f32, tmax: f32, e: [f64; 3], z: [f64; 3]) -> Option<TriHit> {
+    let [u, v, w] = e;
+    if (u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0) {
+        return None;
+    }
+    let det = u + v + w;
+    // Zero only when all three are (an edge-on plane or a degenerate
+    // triangle); NaN from non-finite corners.
+    if !(det != 0.0) {
+        return None;
+    }
+    let t_scaled = u * z[0] + v * z[1] + w * z[2];
+    let t = (t_scaled / det) as f32;
+    if !(t >= tmin && t <= tmax && t < f32::INFINITY) {
+        return None;
+    }
+    Some(TriHit {
+        t,
+        u: (v / det) as f32,
+        v: (w / det) as f32,
     })
 }
 
@@ -353,6 +420,62 @@ mod tests {
                 (None, None) => {}
             }
         }
+    }
+
+    /// Coordinates on a grid of 2^-10, so that scaling them by a power of
+    /// two in `2^-100..=2^100` is exact.
+    fn snapped(r: f32) -> impl Strategy<Value = Vec3> {
+        v3(r).prop_map(|v| (v * 1024.0).round() / 1024.0)
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(20000))]
+        /// Scaling a scene and its ray's origin by a power of two scales
+        /// `t` by it and keeps the barycentrics, whatever the power: a clear
+        /// hit at unit scale is the same hit at 2^-100 (where `f32`'s
+        /// products of three coordinates underflow) and at 2^100 (where its
+        /// products of two overflow). Before the range checks of
+        /// `needs_f64`, hits from about 2^42 up were lost or put at
+        /// infinity, and those from about 2^-43 down put at `t = 0`.
+        #[test]
+        fn hits_keep_at_any_scale(a in snapped(2.0), b in snapped(2.0), c in snapped(2.0),
+                                  d in snapped(1.0), bu in 0.05f32..0.9, bv in 0.05f32..0.9,
+                                  dist in 0.1f32..4.0, k in -100i32..=100) {
+            prop_assume!(d.length() > 1e-2);
+            // Aimed at a point inside (snapped, so it may move a little).
+            let p = a + (b - a) * bu * (1.0 - bv) + (c - a) * bv;
+            let o = ((p - d * dist) * 1024.0).round() / 1024.0;
+            let n = (b - a).cross(c - a);
+            prop_assume!(n.length() > 1e-2);
+            prop_assume!(n.normalize().dot(d.normalize()).abs() > 1e-2);
+            let want = reference(o, d, [a, b, c]);
+            prop_assume!(want.is_some_and(|(t, u, v)| u.min(v).min(1.0 - u - v) > 1e-3 && t > 1e-3));
+            let (t, u, v) = want.unwrap();
+            let s = 2f32.powi(k);
+            let r = Ray::infinite(o * s, d);
+            let h = intersect_triangle(&r, f32::INFINITY, a * s, b * s, c * s);
+            prop_assert!(h.is_some(), "lost the hit at 2^{k}");
+            let h = h.unwrap();
+            let ts = f64::from(h.t) / f64::from(s);
+            prop_assert!((ts - t).abs() <= 1e-3 * (1.0 + t), "t {ts} against {t} at 2^{k}");
+            prop_assert!((f64::from(h.u) - u).abs() <= 1e-3 && (f64::from(h.v) - v).abs() <= 1e-3);
+        }
+    }
+
+    #[test]
+    fn huge_and_tiny_triangles_hit() {
+        // A unit triangle at 10^15 (cubes past f32::MAX) and at 10^-15
+        // (cubes below its least float), a ray down its middle.
+        for s in [1e15f32, 1e30, 1e-15, 1e-30] {
+            let r = Ray::infinite(Vec3::new(0.25, 0.25, 2.0) * s, -Vec3::Z);
+            let h = intersect_triangle(&r, f32::INFINITY, Vec3::ZERO, Vec3::X * s, Vec3::Y * s)
+                .unwrap_or_else(|| panic!("no hit at {s}"));
+            assert!((h.t / s - 2.0).abs() < 1e-6, "t = {} at {s}", h.t);
+            assert!((h.u - 0.25).abs() < 1e-6 && (h.v - 0.25).abs() < 1e-6);
+        }
+        // Beyond what `t` holds: no hit, not one at infinity.
+        let r = Ray::infinite(Vec3::new(0.25, 0.25, 3e38), Vec3::new(0.0, 0.0, -1e-10));
+        assert!(intersect_triangle(&r, f32::INFINITY, Vec3::ZERO, Vec3::X, Vec3::Y).is_none());
     }
 
     /// A ray that starts inside a closed mesh must leave it, so it must hit
