@@ -4,7 +4,7 @@ use crate::packet::{self, Packet8, LANES};
 use crate::pages::{Pages, PagesMut};
 use crate::simd::{block_at, Avx2, BlockRay, GROUP, GROUP_SLOTS};
 use raymesh_geometry::{
-    clip_triangle, intersect_sphere, intersect_triangle, Aabb, Ray, Sphere, Vec3,
+    clip_triangle, intersect_sphere, intersect_triangle, triangle_normal, Aabb, Ray, Sphere, Vec3,
 };
 use rayon::prelude::*;
 
@@ -444,7 +444,7 @@ impl Primitives for TriangleMesh {
     }
     fn normal(&self, i: u32, _ray: &Ray, _hit: &PrimHit) -> Vec3 {
         let [a, b, c] = self.corners(i);
-        (b - a).cross(c - a).normalize_or_zero()
+        triangle_normal(a, b, c)
     }
     fn reorder(&mut self, order: &[u32]) -> bool {
         self.triangles = permuted(&self.triangles, order);
@@ -888,7 +888,7 @@ impl Primitives for Triangles {
     }
     fn normal(&self, i: u32, _ray: &Ray, _hit: &PrimHit) -> Vec3 {
         let [a, b, c] = self.corners(i);
-        (b - a).cross(c - a).normalize_or_zero()
+        triangle_normal(a, b, c)
     }
     fn reorder(&mut self, order: &[u32]) -> bool {
         if order.len() != self.len {
@@ -998,7 +998,7 @@ impl Primitives for Shapes {
     }
     fn normal(&self, i: u32, ray: &Ray, hit: &PrimHit) -> Vec3 {
         match &self.0[i as usize] {
-            Shape::Triangle([a, b, c]) => (*b - *a).cross(*c - *a).normalize_or_zero(),
+            Shape::Triangle([a, b, c]) => triangle_normal(*a, *b, *c),
             Shape::Sphere(s) => s.normal_at(ray.at(hit.t)),
         }
     }

@@ -116,3 +116,47 @@ fn example_scenes_parse_and_render() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A mesh far larger or smaller than the scene `render` makes around a
+/// mesh can light in f32 is refused with a message that says so (it had
+/// failed on a JSON `null` of the generated scene, blamed on the mesh
+/// file's line 1), and a mesh 1e15 units across renders.
+#[test]
+fn meshes_out_of_range_are_refused_plainly() {
+    let dir = std::env::temp_dir().join(format!("raymesh-render-range-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let tet = |s: f32| {
+        format!(
+            "OFF\n4 4 0\n0 0 0\n{s:e} 0 0\n0 {s:e} 0\n0 0 {s:e}\n3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n"
+        )
+    };
+    for (s, word) in [(1e30f32, "too large"), (1e-25, "too small")] {
+        let path = dir.join(format!("tet{s:e}.off"));
+        std::fs::write(&path, tet(s)).unwrap();
+        let out = raymesh()
+            .arg("render")
+            .arg(&path)
+            .args(["--width", "8", "--height", "8", "-o"])
+            .arg(dir.join("out.png"))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{s}");
+        assert!(err.contains(word) && err.contains("units across"), "{err}");
+    }
+    let path = dir.join("big.off");
+    std::fs::write(&path, tet(1e15)).unwrap();
+    let out = raymesh()
+        .arg("render")
+        .arg(&path)
+        .args(["--width", "8", "--height", "8", "--spp", "1", "-o"])
+        .arg(dir.join("big.png"))
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -98,6 +98,22 @@ pub fn clip_triangle(corners: [Vec3; 3], within: Aabb, axis: usize, pos: f32) ->
     (left.intersection(wl), right.intersection(wr))
 }
 
+/// The unit normal of triangle `a b c` (winding order, `(b - a) × (c -
+/// a)` normalized), zero for a degenerate one. Worked out in `f64`, so
+/// that it holds for any `f32` corners: in `f32` the squared length of
+/// the cross product overflows for triangles about 10^9.5 across and
+/// underflows below 10^-9.5, and the normal came out zero (shading such
+/// scenes black).
+#[inline]
+#[must_use]
+pub fn triangle_normal(a: Vec3, b: Vec3, c: Vec3) -> Vec3 {
+    let a = a.as_dvec3();
+    (b.as_dvec3() - a)
+        .cross(c.as_dvec3() - a)
+        .normalize_or_zero()
+        .as_vec3()
+}
+
 /// Twice the area of a triangle, computed in f64 so that tiny triangles far
 /// from the origin are not reported degenerate by rounding alone.
 #[must_use]
@@ -460,6 +476,18 @@ mod tests {
             prop_assert!((ts - t).abs() <= 1e-3 * (1.0 + t), "t {ts} against {t} at 2^{k}");
             prop_assert!((f64::from(h.u) - u).abs() <= 1e-3 && (f64::from(h.v) - v).abs() <= 1e-3);
         }
+    }
+
+    #[test]
+    fn normals_of_huge_and_tiny_triangles() {
+        for s in [1.0f32, 1e12, 1e30, 1e38, 1e-12, 1e-30, 1e-40] {
+            let n = triangle_normal(Vec3::X * s, Vec3::Y * s, Vec3::Z * s);
+            assert!((n - Vec3::ONE / 3f32.sqrt()).length() < 1e-6, "{n} at {s}");
+        }
+        assert_eq!(
+            triangle_normal(Vec3::ZERO, Vec3::X, Vec3::X * 2.0),
+            Vec3::ZERO
+        );
     }
 
     #[test]

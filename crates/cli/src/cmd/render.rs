@@ -79,17 +79,47 @@ fn mesh_scene(path: &Path) -> Result<SceneDesc> {
     if b.is_empty() {
         bail!("{}: the mesh has no vertices", path.display());
     }
-    let (c, d) = (b.centroid(), b.diagonal().max(1e-6));
+    // The diagonal in f64: in f32 its square overflows past 1e19.
+    let diagonal = (b.max.as_dvec3() - b.min.as_dvec3()).length();
+    let (c, d) = (
+        b.centroid(),
+        if diagonal > 0.0 {
+            diagonal as f32
+        } else {
+            1e-6
+        },
+    );
     let eye = c + Vec3::new(1.0, 0.6, 1.6).normalize() * d;
     let light = eye + 0.5 * d * Vec3::Y + Vec3::new(-0.3, 0.0, 0.2) * d;
     let (y, r) = (b.min.y - 1e-3 * d, 4.0 * d);
     let corner = |sx: f32, sz: f32| [c.x + sx * r, y, c.z + sz * r];
+    // The light's intensity grows with the square of the mesh's size (its
+    // falloff is the square of the distance), and the floor reaches four
+    // sizes out: past about 1e18 units across these overflow f32, and
+    // below 1e-18 the square underflows (the image came out black). Say
+    // so rather than render a wrong picture.
+    let intensity = 1.6 * d * d;
+    let far = [corner(-1.0, -1.0), corner(1.0, 1.0)];
+    if !(intensity.is_normal()
+        && intensity < 1e37
+        && eye.is_finite()
+        && light.is_finite()
+        && far.iter().flatten().all(|x| x.is_finite()))
+    {
+        bail!(
+            "{}: the mesh is {diagonal:.1e} units across, too {} for the scene `render` makes around a mesh \
+             (light and floor scaled to it, in f32: from about 1e-18 to 1e18 units); \
+             scale it, or write a scene file (docs/scene-format.md)",
+            path.display(),
+            if diagonal > 1.0 { "large" } else { "small" }
+        );
+    }
     let desc = json!({
         "camera": { "eye": eye.to_array(), "target": c.to_array(), "fov": 40 },
         "image": { "width": 800, "height": 600, "spp": 4 },
         "lights": [
             { "type": "ambient", "intensity": 0.2 },
-            { "type": "point", "position": light.to_array(), "intensity": 1.6 * d * d }
+            { "type": "point", "position": light.to_array(), "intensity": intensity }
         ],
         "materials": {
             "grey": { "ambient": [0.5, 0.5, 0.5], "diffuse": [0.7, 0.7, 0.7], "specular": [0.2, 0.2, 0.2], "shininess": 30 },
