@@ -1,7 +1,7 @@
 //! Face and vertex normals of an indexed polygon mesh.
 
 use crate::IndexedMesh;
-use raymesh_geometry::Vec3;
+use raymesh_geometry::{DVec3, Vec3};
 
 /// Angle-weighted vertex normals (Thürmer & Wüthrich, "Computing vertex
 /// normals from polygonal facets", 1998): each face adds its unit normal
@@ -28,7 +28,7 @@ pub fn vertex_normals(mesh: &IndexedMesh) -> Vec<Vec3> {
             let at = p[b as usize];
             let next = p[f[(i + 1) % f.len()] as usize];
             let (e0, e1) = (prev - at, next - at);
-            normals[b as usize] += n * fast_angle(e0.cross(e1).length(), e0.dot(e1));
+            normals[b as usize] += n * corner_angle(e0, e1);
             prev = at;
         }
     }
@@ -36,6 +36,28 @@ pub fn vertex_normals(mesh: &IndexedMesh) -> Vec<Vec3> {
         *n = n.normalize_or_zero();
     }
     normals
+}
+
+/// The angle between edges `e0` and `e1`: [`fast_angle`] of their cross
+/// and dot products in `f32`, and in `f64` where those left `f32`'s
+/// range (edges longer than about 1e19 overflow the cross product's
+/// length, shorter than about 1e-19 underflow both to zero), so that a
+/// mesh's normals are the same at any scale.
+#[inline]
+fn corner_angle(e0: Vec3, e1: Vec3) -> f32 {
+    let (cross, dot) = (e0.cross(e1).length(), e0.dot(e1));
+    if cross.is_finite() && dot.is_finite() && cross.max(dot.abs()) >= f32::MIN_POSITIVE {
+        return fast_angle(cross, dot);
+    }
+    let (e0, e1) = (e0.as_dvec3(), e1.as_dvec3());
+    let (cross, dot) = (e0.cross(e1).length(), e0.dot(e1));
+    // The angle depends on the ratio alone.
+    let scale = cross.max(dot.abs());
+    if scale > 0.0 && scale.is_finite() {
+        fast_angle((cross / scale) as f32, (dot / scale) as f32)
+    } else {
+        0.0
+    }
 }
 
 /// The angle between two vectors whose dot product is `dot` and whose
@@ -68,21 +90,39 @@ pub fn fast_angle(cross: f32, dot: f32) -> f32 {
 }
 
 /// Unit normal of a polygon by Newell's method (robust for non-planar
-/// polygons); zero for a degenerate one.
+/// polygons); zero for a degenerate one. Worked out again in `f64` where
+/// `f32` gives none (a degenerate polygon, or one whose squared normal
+/// leaves `f32`'s range: past about 1e9.5 units across, or below 1e-9.5,
+/// whose normals were zero), so that a mesh's normals are the same at
+/// any scale.
 #[must_use]
 pub fn face_normal(mesh: &IndexedMesh, face: &[u32]) -> Vec3 {
     let p = &mesh.positions;
+    let edge = |i: usize| (p[face[i] as usize], p[face[(i + 1) % face.len()] as usize]);
     let mut n = Vec3::ZERO;
     for i in 0..face.len() {
-        let a = p[face[i] as usize];
-        let b = p[face[(i + 1) % face.len()] as usize];
+        let (a, b) = edge(i);
         n += Vec3::new(
             (a.y - b.y) * (a.z + b.z),
             (a.z - b.z) * (a.x + b.x),
             (a.x - b.x) * (a.y + b.y),
         );
     }
-    n.normalize_or_zero()
+    let unit = n.normalize_or_zero();
+    if unit != Vec3::ZERO {
+        return unit;
+    }
+    let mut n = DVec3::ZERO;
+    for i in 0..face.len() {
+        let (a, b) = edge(i);
+        let (a, b) = (a.as_dvec3(), b.as_dvec3());
+        n += DVec3::new(
+            (a.y - b.y) * (a.z + b.z),
+            (a.z - b.z) * (a.x + b.x),
+            (a.x - b.x) * (a.y + b.y),
+        );
+    }
+    n.normalize_or_zero().as_vec3()
 }
 
 #[cfg(test)]
@@ -125,6 +165,41 @@ mod tests {
         assert!((a - b).length() < 2e-5, "{a} {b}");
         let uniform = (Vec3::Z + Vec3::Y * 2.0).normalize();
         assert!((a - uniform).length() > 0.1);
+    }
+
+    #[test]
+    fn normals_are_the_same_at_any_scale() {
+        let cube = |s: f32| {
+            let p = [
+                [-1., -1., -1.],
+                [1., -1., -1.],
+                [1., 1., -1.],
+                [-1., 1., -1.],
+                [-1., -1., 1.],
+                [1., -1., 1.],
+                [1., 1., 1.],
+                [-1., 1., 1.],
+            ]
+            .map(|v| Vec3::from_array(v) * s)
+            .to_vec();
+            let f: [&[u32]; 6] = [
+                &[0, 3, 2, 1],
+                &[4, 5, 6, 7],
+                &[0, 1, 5, 4],
+                &[2, 3, 7, 6],
+                &[1, 2, 6, 5],
+                &[0, 4, 7, 3],
+            ];
+            IndexedMesh::from_polygons(p, f).unwrap()
+        };
+        let unit = vertex_normals(&cube(1.0));
+        for s in [1e12f32, 1e20, 1e37, 1e-12, 1e-20, 1e-36] {
+            let m = cube(s);
+            assert_eq!(face_normal(&m, m.face(1)), Vec3::Z, "at {s}");
+            for (a, b) in vertex_normals(&m).iter().zip(&unit) {
+                assert!((*a - *b).length() < 1e-5, "{a} against {b} at {s}");
+            }
+        }
     }
 
     #[test]
