@@ -45,9 +45,16 @@ pub fn vertex_normals(mesh: &IndexedMesh) -> Vec<Vec3> {
 /// mesh's normals are the same at any scale.
 #[inline]
 fn corner_angle(e0: Vec3, e1: Vec3) -> f32 {
-    let (cross, dot) = (e0.cross(e1).length(), e0.dot(e1));
-    if cross.is_finite() && dot.is_finite() && cross.max(dot.abs()) >= f32::MIN_POSITIVE {
-        return fast_angle(cross, dot);
+    // The cross product's squared length must be a normal float (or the
+    // product zero: collinear edges), else its length overflowed or lost
+    // its digits.
+    let (c, dot) = (e0.cross(e1), e0.dot(e1));
+    let c2 = c.length_squared();
+    if ((c2.is_normal() && c2 < f32::INFINITY) || c == Vec3::ZERO)
+        && dot.is_finite()
+        && c2.max(dot.abs()) >= f32::MIN_POSITIVE
+    {
+        return fast_angle(c2.sqrt(), dot);
     }
     let (e0, e1) = (e0.as_dvec3(), e1.as_dvec3());
     let (cross, dot) = (e0.cross(e1).length(), e0.dot(e1));
@@ -192,12 +199,32 @@ mod tests {
             ];
             IndexedMesh::from_polygons(p, f).unwrap()
         };
-        let unit = vertex_normals(&cube(1.0));
-        for s in [1e12f32, 1e20, 1e37, 1e-12, 1e-20, 1e-36] {
-            let m = cube(s);
-            assert_eq!(face_normal(&m, m.face(1)), Vec3::Z, "at {s}");
-            for (a, b) in vertex_normals(&m).iter().zip(&unit) {
-                assert!((*a - *b).length() < 1e-5, "{a} against {b} at {s}");
+        // And a tetrahedron, whose corners' angles are not right angles
+        // (whose dot products are zero).
+        let tet = |s: f32| {
+            let p = [
+                [0.0, 0.0, 0.0],
+                [1.0, 0.1, 0.0],
+                [0.2, 1.0, 0.0],
+                [0.3, 0.2, 1.0],
+            ]
+            .map(|v| Vec3::from_array(v) * s)
+            .to_vec();
+            let f: [&[u32]; 4] = [&[0, 2, 1], &[0, 1, 3], &[0, 3, 2], &[1, 2, 3]];
+            IndexedMesh::from_polygons(p, f).unwrap()
+        };
+        for mesh in [cube, tet] {
+            let unit = vertex_normals(&mesh(1.0));
+            for s in [1e12f32, 1e20, 1e37, 1e-12, 1e-20, 1e-36] {
+                let m = mesh(s);
+                let (a, b) = (
+                    face_normal(&m, m.face(1)),
+                    face_normal(&mesh(1.0), m.face(1)),
+                );
+                assert!((a - b).length() < 1e-6, "{a} against {b} at {s}");
+                for (a, b) in vertex_normals(&m).iter().zip(&unit) {
+                    assert!((*a - *b).length() < 1e-5, "{a} against {b} at {s}");
+                }
             }
         }
     }
