@@ -5,7 +5,7 @@
 //! same workload comes out bit for bit on every machine and crate version.
 
 use raymesh_accel::{Aabb, Ray, Surface};
-use raymesh_geometry::Vec3;
+use raymesh_geometry::{unit_vector, Vec3};
 use std::str::FromStr;
 
 /// A named workload.
@@ -100,8 +100,9 @@ impl Camera {
         width: u32,
         height: u32,
     ) -> Self {
-        let forward = (target - eye).normalize();
-        let right = forward.cross(up).normalize();
+        // (`unit_vector`: `normalize` overflowed past 1e19 units.)
+        let forward = unit_vector(target - eye);
+        let right = unit_vector(forward.cross(up));
         let up = right.cross(forward);
         Self {
             eye,
@@ -117,7 +118,11 @@ impl Camera {
     /// BENCH.md's primary camera for a box: target its centre, eye at
     /// `c + normalize(1, 0.6, 1.6) d`, up +Y, 40° vertical field of view.
     pub fn framing(b: &Aabb, width: u32, height: u32) -> Self {
-        let (c, d) = (b.centroid(), b.diagonal().max(1e-6));
+        // (A box of one point still gets a camera; a box of any size, as
+        // small as 1e-19, is framed on its own diagonal: at least 1e-6
+        // had put the camera over a mesh of 1e-15 as over a speck.)
+        let d = b.diagonal();
+        let (c, d) = (b.centroid(), if d > 0.0 { d } else { 1e-6 });
         let eye = c + Vec3::new(1.0, 0.6, 1.6).normalize() * d;
         Self::look_at(eye, c, Vec3::Y, 40.0, width, height)
     }
@@ -219,7 +224,7 @@ pub fn make_rays_framing(
                 let o = c + unit_sphere(&mut rng) * 0.75 * d;
                 let p = b.min
                     + (b.max - b.min) * Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
-                pack(o, (p - o).normalize_or_zero(), f32::INFINITY)
+                pack(o, unit_vector(p - o), f32::INFINITY)
             })
             .collect(),
         Workload::Diffuse | Workload::Shadow => {
@@ -237,7 +242,11 @@ pub fn make_rays_framing(
                 let p = o + h.t * dir + 1e-4 * d * n;
                 if w == Workload::Shadow {
                     let to = light - p;
-                    let dist = to.length();
+                    // Past 1e19 units `length` overflows: then in f64.
+                    let dist = match to.length() {
+                        d if d.is_finite() && d >= f32::MIN_POSITIVE => d,
+                        _ => to.as_dvec3().length() as f32,
+                    };
                     out.push(pack(p, to / dist, dist));
                 } else {
                     // Cosine-weighted about n (Malley's method).
@@ -256,6 +265,54 @@ pub fn make_rays_framing(
                 }
             }
             out
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use raymesh_accel::{AccelKind, Scene, TriangleMesh};
+
+    /// A tetrahedron of size `s`.
+    fn tet(s: f32) -> Scene<TriangleMesh> {
+        let positions = [
+            [0.0, 0.0, 0.0],
+            [1.0, 0.1, 0.0],
+            [0.2, 1.0, 0.0],
+            [0.3, 0.2, 1.0],
+        ]
+        .map(|v| Vec3::from_array(v) * s)
+        .to_vec();
+        let triangles = vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]];
+        Scene::build(
+            TriangleMesh {
+                positions,
+                triangles,
+            },
+            AccelKind::Brute,
+        )
+    }
+
+    /// The workloads frame a scene of any size alike: the same number of
+    /// rays hit a tetrahedron 1e-19 and 1e30 units across as a unit one.
+    /// (The camera had been put 1e-6 from any smaller scene, and past 1e19
+    /// its `normalize` overflowed: no ray hit.)
+    #[test]
+    fn workloads_hit_alike_at_any_scale() {
+        let hits = |s: f32, w: Workload| {
+            let scene = tet(s);
+            make_rays(w, &scene, 24, 7)
+                .iter()
+                .filter(|r| scene.intersect(&unpack_ray(**r)).is_some())
+                .count()
+        };
+        for w in [Workload::Primary, Workload::Random] {
+            let unit = hits(1.0, w);
+            assert!(unit > 100, "{unit}");
+            for s in [1e30f32, 1e20, 1e-15, 1e-19] {
+                assert_eq!(hits(s, w), unit, "{w:?} at {s}");
+            }
         }
     }
 }

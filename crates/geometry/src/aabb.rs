@@ -145,11 +145,21 @@ impl Aabb {
         e.x * e.y + e.y * e.z + e.z * e.x
     }
 
-    /// Length of the diagonal (zero for the empty box).
+    /// Length of the diagonal (zero for the empty box). Worked out again
+    /// in `f64` where `f32`'s squared length leaves its normal range: it
+    /// overflowed for boxes past about 1e19 across (infinity) and
+    /// underflowed below 1e-19 (zero), and the cameras framed on it missed
+    /// the scene.
     #[inline]
     #[must_use]
     pub fn diagonal(&self) -> f32 {
-        self.extent().length()
+        let e = self.extent();
+        let l2 = e.length_squared();
+        if (l2.is_normal() && l2 < f32::INFINITY) || e == Vec3::ZERO {
+            l2.sqrt()
+        } else {
+            e.as_dvec3().length() as f32
+        }
     }
 
     /// Axis (0, 1, 2) of the largest extent; ties go to the lower axis.
@@ -339,6 +349,19 @@ mod tests {
         }
         let r = Ray::infinite(Vec3::ZERO, Vec3::new(f32::NAN, 1.0, 0.0));
         assert!(b.intersect_ray(&r, f32::INFINITY).is_none());
+    }
+
+    #[test]
+    fn diagonal_at_any_scale() {
+        for s in [1.0f32, 1e20, 1e37, 1e-20, 1e-37] {
+            let b = Aabb::new(Vec3::ZERO, Vec3::new(3.0, 4.0, 12.0) * s);
+            assert!(
+                (b.diagonal() / s - 13.0).abs() < 1e-5,
+                "{} at {s}",
+                b.diagonal()
+            );
+        }
+        assert_eq!(Aabb::EMPTY.diagonal(), 0.0);
     }
 
     /// Reference slab test in f64 with explicit parallel-ray handling.

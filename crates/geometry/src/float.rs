@@ -104,3 +104,37 @@ mod tests {
         assert!(gamma(1) > 0.0 && gamma(1) < 1e-7);
     }
 }
+
+/// `v` scaled to unit length, zero for a zero (or non-finite) vector, for
+/// any finite `v`: glam's `normalize_or_zero` where its squared length is
+/// in `f32`'s range (the same bits), in `f64` where it is not (vectors
+/// longer than about 1e19, whose squared length overflows, or shorter
+/// than about 1e-19, whose squared length underflows: `f32` gave zero or
+/// NaN for both).
+#[inline]
+#[must_use]
+pub fn unit_vector(v: glam::Vec3) -> glam::Vec3 {
+    let n = v.normalize_or_zero();
+    if n != glam::Vec3::ZERO || v == glam::Vec3::ZERO {
+        return n;
+    }
+    v.as_dvec3().normalize_or_zero().as_vec3()
+}
+
+#[cfg(test)]
+mod unit_tests {
+    use super::unit_vector;
+    use glam::Vec3;
+
+    #[test]
+    fn unit_vectors_at_any_scale() {
+        let v = Vec3::new(3.0, -4.0, 12.0);
+        for s in [1.0f32, 1e20, 1e37, 1e-20, 1e-37] {
+            let u = unit_vector(v * s);
+            assert!((u - v / 13.0).length() < 1e-6, "{u} at {s}");
+        }
+        assert_eq!(unit_vector(v), v.normalize());
+        assert_eq!(unit_vector(Vec3::ZERO), Vec3::ZERO);
+        assert_eq!(unit_vector(Vec3::new(f32::NAN, 0.0, 1.0)), Vec3::ZERO);
+    }
+}

@@ -16,7 +16,8 @@ mod triangle;
 
 pub use aabb::{cull_bound, Aabb, CULL_SLACK};
 pub use float::{
-    exit_reciprocal, gamma, max_nan_second, min_nan_second, next_down, next_up, ROBUST_EXIT,
+    exit_reciprocal, gamma, max_nan_second, min_nan_second, next_down, next_up, unit_vector,
+    ROBUST_EXIT,
 };
 pub use glam::{BVec4A, DVec3, Mat3, Mat3A, Mat4, Quat, Vec2, Vec3, Vec3A, Vec4};
 pub use octahedral::{decode_unit, encode_unit, ZERO_UNIT};

@@ -1,6 +1,6 @@
 //! A pinhole camera.
 
-use raymesh_geometry::{Ray, Rays8, Vec3};
+use raymesh_geometry::{unit_vector, Ray, Rays8, Vec3};
 
 /// Pinhole camera: an eye, an orthonormal frame and a vertical field of view.
 #[derive(Clone, Copy, Debug)]
@@ -18,8 +18,10 @@ impl Camera {
     /// Returns `None` when the frame is degenerate (eye = target, or up parallel to the view).
     #[must_use]
     pub fn look_at(eye: Vec3, target: Vec3, up: Vec3, vfov_deg: f32, aspect: f32) -> Option<Self> {
-        let forward = (target - eye).try_normalize()?;
-        let right = forward.cross(up).try_normalize()?;
+        // (`unit_vector`: `try_normalize` gave up on an eye more than 1e19
+        // units from its target, or less than 1e-19.)
+        let forward = Some(unit_vector(target - eye)).filter(|f| *f != Vec3::ZERO)?;
+        let right = Some(unit_vector(forward.cross(up))).filter(|r| *r != Vec3::ZERO)?;
         let up = right.cross(forward);
         (vfov_deg > 0.0 && vfov_deg < 180.0 && aspect > 0.0).then(|| Self {
             eye,
