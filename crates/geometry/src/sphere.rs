@@ -74,10 +74,17 @@ pub fn intersect_sphere(ray: &Ray, tmax: f32, center: Vec3, radius: f32) -> Opti
     let l = f + (b / a) * d; // centre → closest point on the line
     let r2 = radius * radius;
     let disc = a * (r2 - l.dot(l));
+    let ff = f.dot(f);
+    if !(r2.is_normal() && a.is_normal() && ff < f32::INFINITY && disc.is_finite()) {
+        // Squares out of f32's normal range (a sphere or a distance past
+        // about 1e19, a radius below 1e-19, a direction of such a length):
+        // in f64, where they are not.
+        return intersect_sphere_f64(ray, tmax, center, radius);
+    }
     if !(disc >= 0.0) {
         return None;
     }
-    let c = f.dot(f) - r2;
+    let c = ff - r2;
     let q = b + b.signum() * disc.sqrt();
     let (mut t0, mut t1) = if q == 0.0 {
         // Ray through the centre with the origin at the centre.
@@ -107,10 +114,72 @@ pub fn intersect_sphere(ray: &Ray, tmax: f32, center: Vec3, radius: f32) -> Opti
     Some(SphereHit { t, u, v })
 }
 
+/// [`intersect_sphere`]'s arithmetic in `f64`, for rays and spheres whose
+/// squares leave `f32`'s range.
+#[cold]
+fn intersect_sphere_f64(ray: &Ray, tmax: f32, center: Vec3, radius: f32) -> Option<SphereHit> {
+    let (d, center) = (ray.dir().as_dvec3(), center.as_dvec3());
+    let radius = f64::from(radius);
+    let f = ray.origin().as_dvec3() - center;
+    let a = d.dot(d);
+    let b = -f.dot(d);
+    let l = f + (b / a) * d;
+    let r2 = radius * radius;
+    let disc = a * (r2 - l.dot(l));
+    if !(disc >= 0.0) {
+        return None;
+    }
+    let c = f.dot(f) - r2;
+    let q = b + b.signum() * disc.sqrt();
+    let (t0, t1) = if q == 0.0 {
+        let h = disc.sqrt() / a;
+        (-h, h)
+    } else {
+        (c / q, q / a)
+    };
+    let (t0, t1) = ((t0.min(t1)) as f32, (t0.max(t1)) as f32);
+    let t = if t0 >= ray.tmin() && t0 <= tmax && t0 < f32::INFINITY {
+        t0
+    } else if t1 >= ray.tmin() && t1 <= tmax && t1 < f32::INFINITY {
+        t1
+    } else {
+        return None;
+    };
+    let n = (ray.origin().as_dvec3() + f64::from(t) * d - center) / radius;
+    let phi = n.z.atan2(n.x) as f32;
+    let u = if phi < 0.0 {
+        phi / std::f32::consts::TAU + 1.0
+    } else {
+        phi / std::f32::consts::TAU
+    };
+    let v = (n.y.clamp(-1.0, 1.0) as f32).acos() / std::f32::consts::PI;
+    Some(SphereHit { t, u, v })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    /// The same hit at any scale: a unit sphere's hit, scaled by 1e30 or
+    /// 1e-30 with its ray's origin (where `f32`'s squares overflow or
+    /// underflow), at the scaled distance and the same point.
+    #[test]
+    fn hits_at_any_scale() {
+        let o = Vec3::new(0.3, -0.2, -3.0);
+        let d = Vec3::new(0.05, 0.02, 1.0);
+        let unit = intersect_sphere(&Ray::infinite(o, d), f32::INFINITY, Vec3::ZERO, 1.0).unwrap();
+        for s in [1e10f32, 1e20, 1e30, 1e-10, 1e-20, 1e-30] {
+            let h = intersect_sphere(&Ray::infinite(o * s, d), f32::INFINITY, Vec3::ZERO, s)
+                .unwrap_or_else(|| panic!("no hit at {s}"));
+            assert!(
+                (h.t / s - unit.t).abs() < 1e-5 * unit.t,
+                "{} at {s}",
+                h.t / s
+            );
+            assert!((h.u - unit.u).abs() < 1e-5 && (h.v - unit.v).abs() < 1e-5);
+        }
+    }
 
     #[test]
     fn front_and_inside() {
