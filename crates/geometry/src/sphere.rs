@@ -61,69 +61,22 @@ impl Sphere {
 /// Intersection" (Ray Tracing Gems, ch. 7): the discriminant is computed from
 /// the distance between the centre and the ray's closest point, which keeps
 /// its precision for small spheres far away and for grazing rays, and the two
-/// roots come from the numerically stable pair `q / a`, `c / q`.
+/// roots come from the numerically stable pair `q / a`, `c / q`. In `f64`:
+/// the test squares distances and the radius, which in `f32` overflow past
+/// about 1e19 units and underflow below 1e-19 (a sphere 1e20 or 1e-20
+/// across was missed); spheres are few in a scene, and `f64`'s arithmetic
+/// costs them little.
 #[must_use]
 pub fn intersect_sphere(ray: &Ray, tmax: f32, center: Vec3, radius: f32) -> Option<SphereHit> {
     if !(radius > 0.0) || !center.is_finite() || !radius.is_finite() {
         return None;
     }
-    let d = ray.dir();
-    let f = ray.origin() - center;
-    let a = d.dot(d);
-    let b = -f.dot(d); // half of -b in the textbook quadratic
-    let l = f + (b / a) * d; // centre → closest point on the line
-    let r2 = radius * radius;
-    let disc = a * (r2 - l.dot(l));
-    let ff = f.dot(f);
-    if !(r2.is_normal() && a.is_normal() && ff < f32::INFINITY && disc.is_finite()) {
-        // Squares out of f32's normal range (a sphere or a distance past
-        // about 1e19, a radius below 1e-19, a direction of such a length):
-        // in f64, where they are not.
-        return intersect_sphere_f64(ray, tmax, center, radius);
-    }
-    if !(disc >= 0.0) {
-        return None;
-    }
-    let c = ff - r2;
-    let q = b + b.signum() * disc.sqrt();
-    let (mut t0, mut t1) = if q == 0.0 {
-        // Ray through the centre with the origin at the centre.
-        let h = (disc.sqrt()) / a;
-        (-h, h)
-    } else {
-        (c / q, q / a)
-    };
-    if t0 > t1 {
-        std::mem::swap(&mut t0, &mut t1);
-    }
-    let t = if t0 >= ray.tmin() && t0 <= tmax {
-        t0
-    } else if t1 >= ray.tmin() && t1 <= tmax {
-        t1
-    } else {
-        return None;
-    };
-    let n = (ray.at(t) - center) / radius;
-    let phi = n.z.atan2(n.x);
-    let u = if phi < 0.0 {
-        phi / std::f32::consts::TAU + 1.0
-    } else {
-        phi / std::f32::consts::TAU
-    };
-    let v = n.y.clamp(-1.0, 1.0).acos() / std::f32::consts::PI;
-    Some(SphereHit { t, u, v })
-}
-
-/// [`intersect_sphere`]'s arithmetic in `f64`, for rays and spheres whose
-/// squares leave `f32`'s range.
-#[cold]
-fn intersect_sphere_f64(ray: &Ray, tmax: f32, center: Vec3, radius: f32) -> Option<SphereHit> {
     let (d, center) = (ray.dir().as_dvec3(), center.as_dvec3());
     let radius = f64::from(radius);
     let f = ray.origin().as_dvec3() - center;
     let a = d.dot(d);
-    let b = -f.dot(d);
-    let l = f + (b / a) * d;
+    let b = -f.dot(d); // half of -b in the textbook quadratic
+    let l = f + (b / a) * d; // centre → closest point on the line
     let r2 = radius * radius;
     let disc = a * (r2 - l.dot(l));
     if !(disc >= 0.0) {
@@ -132,12 +85,14 @@ fn intersect_sphere_f64(ray: &Ray, tmax: f32, center: Vec3, radius: f32) -> Opti
     let c = f.dot(f) - r2;
     let q = b + b.signum() * disc.sqrt();
     let (t0, t1) = if q == 0.0 {
+        // Ray through the centre with the origin at the centre.
         let h = disc.sqrt() / a;
         (-h, h)
     } else {
         (c / q, q / a)
     };
-    let (t0, t1) = ((t0.min(t1)) as f32, (t0.max(t1)) as f32);
+    // Distances past f32's range are no hit.
+    let (t0, t1) = (t0.min(t1) as f32, t0.max(t1) as f32);
     let t = if t0 >= ray.tmin() && t0 <= tmax && t0 < f32::INFINITY {
         t0
     } else if t1 >= ray.tmin() && t1 <= tmax && t1 < f32::INFINITY {
