@@ -158,13 +158,18 @@ pub fn intersect_triangle(ray: &Ray, tmax: f32, p0: Vec3, p1: Vec3, p2: Vec3) ->
     let u = cx * by - cy * bx;
     let v = ax * cy - ay * cx;
     let w = bx * ay - by * ax;
-    let outside = (u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0);
+    // Outside by strict comparisons is outside whatever the range: they are
+    // false for NaN, an edge function that overflowed to an infinity keeps
+    // its sign, and the f64 redo would find the same signs.
+    if (u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0) {
+        return None;
+    }
     let det = u + v + w;
     let az = s.z * a.z;
     let bz = s.z * b.z;
     let cz = s.z * c.z;
     let t_scaled = u * az + v * bz + w * cz;
-    if needs_f64(u, v, w, det, t_scaled, outside) {
+    if needs_f64(u, v, w, det, t_scaled, false) {
         let d = |x: f32| f64::from(x);
         let (ax, ay, bx, by, cx, cy) = (d(ax), d(ay), d(bx), d(by), d(cx), d(cy));
         let sz = d(s.z);
@@ -174,9 +179,6 @@ pub fn intersect_triangle(ray: &Ray, tmax: f32, p0: Vec3, p1: Vec3, p2: Vec3) ->
             [cx * by - cy * bx, ax * cy - ay * cx, bx * ay - by * ax],
             [sz * d(a.z), sz * d(b.z), sz * d(c.z)],
         );
-    }
-    if outside {
-        return None;
     }
     // Inside, all three of one sign and none zero: `det` is not zero, and
     // (from `needs_f64`) neither NaN nor infinite.
@@ -203,7 +205,9 @@ pub fn intersect_triangle(ray: &Ray, tmax: f32, p0: Vec3, p1: Vec3, p2: Vec3) ->
 /// ray inside, either below the least normal float (products that
 /// underflowed, so `t` or the barycentrics lost their precision, down to
 /// `t = 0`). The SIMD kernels redo exactly these lanes (each with the
-/// same `f32` operations), so that every kernel gives the same bits.
+/// same `f32` operations), so that every kernel gives the same bits; a
+/// lane outside by strict comparisons is no hit either way, which is why
+/// the scalar test, having returned for those already, passes `false`.
 #[inline(always)]
 #[must_use]
 pub fn needs_f64(u: f32, v: f32, w: f32, det: f32, t_scaled: f32, outside: bool) -> bool {
