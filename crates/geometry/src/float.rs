@@ -107,16 +107,15 @@ mod tests {
 
 /// `v` scaled to unit length, zero for a zero (or non-finite) vector, for
 /// any finite `v`: glam's `normalize_or_zero` where its squared length is
-/// in `f32`'s range (the same bits), in `f64` where it is not (vectors
+/// a normal `f32` (the same bits), in `f64` where it is not (vectors
 /// longer than about 1e19, whose squared length overflows, or shorter
-/// than about 1e-19, whose squared length underflows: `f32` gave zero or
-/// NaN for both).
+/// than about 1e-19, whose squared length underflows or loses its
+/// digits: `f32` gave zero, NaN or a vector not of unit length).
 #[inline]
 #[must_use]
 pub fn unit_vector(v: glam::Vec3) -> glam::Vec3 {
-    let n = v.normalize_or_zero();
-    if n != glam::Vec3::ZERO || v == glam::Vec3::ZERO {
-        return n;
+    if v.length_squared().is_normal() {
+        return v.normalize_or_zero();
     }
     v.as_dvec3().normalize_or_zero().as_vec3()
 }

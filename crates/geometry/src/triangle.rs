@@ -99,14 +99,19 @@ pub fn clip_triangle(corners: [Vec3; 3], within: Aabb, axis: usize, pos: f32) ->
 }
 
 /// The unit normal of triangle `a b c` (winding order, `(b - a) × (c -
-/// a)` normalized), zero for a degenerate one. Worked out in `f64`, so
-/// that it holds for any `f32` corners: in `f32` the squared length of
-/// the cross product overflows for triangles about 10^9.5 across and
-/// underflows below 10^-9.5, and the normal came out zero (shading such
-/// scenes black).
+/// a)` normalized), zero for a degenerate one. Worked out again in `f64`
+/// where the cross product's squared length is not a normal `f32`, so
+/// that it holds for any `f32` corners: in `f32` it overflows for
+/// triangles about 10^9.5 across and underflows below 10^-9.5, and the
+/// normal came out zero (shading such scenes black).
 #[inline]
 #[must_use]
 pub fn triangle_normal(a: Vec3, b: Vec3, c: Vec3) -> Vec3 {
+    let n = (b - a).cross(c - a);
+    if n.length_squared().is_normal() {
+        // In range: `f32`, the bits it always gave.
+        return n.normalize_or_zero();
+    }
     let a = a.as_dvec3();
     (b.as_dvec3() - a)
         .cross(c.as_dvec3() - a)

@@ -495,12 +495,11 @@ impl World {
             Instances::build(objects, &instances, accel).map_err(|e| err("surfaces".into(), e))?;
         let build_ms = start.elapsed().as_secs_f64() * 1e3;
         let b = scene.bounds();
-        // A hundred-thousandth of the scene, measured in f64 (in f32 the
-        // diagonal's square overflows past 1e19 units), and with no floor
-        // of its own: at least 1e-6 put shadow rays of a scene smaller than
-        // 0.1 units that far off the surface (a 1e-15 scene came out
-        // speckled). A scene of one point takes 1e-4.
-        let diagonal = (b.max.as_dvec3() - b.min.as_dvec3()).length() as f32;
+        // A hundred-thousandth of the scene, with no floor of its own: at
+        // least 1e-6 put shadow rays of a scene smaller than 0.1 units that
+        // far off the surface (a 1e-15 scene came out speckled). A scene
+        // of one point takes 1e-4.
+        let diagonal = b.diagonal();
         let epsilon = if !b.is_empty() && diagonal > 0.0 && diagonal.is_finite() {
             (diagonal * 1e-5).max(f32::MIN_POSITIVE)
         } else {

@@ -79,16 +79,11 @@ fn mesh_scene(path: &Path) -> Result<SceneDesc> {
     if b.is_empty() {
         bail!("{}: the mesh has no vertices", path.display());
     }
-    // The diagonal in f64: in f32 its square overflows past 1e19.
+    // The diagonal in f64 for the message below (past 1e38 it is not an
+    // f32); in f32 for the scene, from `Aabb::diagonal` (its bits).
     let diagonal = (b.max.as_dvec3() - b.min.as_dvec3()).length();
-    let (c, d) = (
-        b.centroid(),
-        if diagonal > 0.0 {
-            diagonal as f32
-        } else {
-            1e-6
-        },
-    );
+    let d = b.diagonal();
+    let (c, d) = (b.centroid(), if d > 0.0 { d } else { 1e-6 });
     let eye = c + Vec3::new(1.0, 0.6, 1.6).normalize() * d;
     let light = eye + 0.5 * d * Vec3::Y + Vec3::new(-0.3, 0.0, 0.2) * d;
     let (y, r) = (b.min.y - 1e-3 * d, 4.0 * d);
