@@ -383,6 +383,10 @@ impl SceneError {
 impl SceneDesc {
     /// Parses scene JSON; `file` names it in errors.
     pub fn parse(text: &str, file: &Path) -> Result<Self, SceneError> {
+        // A byte-order mark, as some Windows editors write, is no JSON
+        // value: serde_json stops at it (positions after it are the ones
+        // an editor shows, which hides the mark).
+        let text = text.strip_prefix('\u{feff}').unwrap_or(text);
         located::<Self>(text, file).map_err(|e| refine(text, file, e))
     }
 

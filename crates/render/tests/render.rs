@@ -266,6 +266,28 @@ fn scene_errors_name_file_line_and_path() {
     }
 }
 
+/// A scene file that starts with a UTF-8 byte-order mark (as some Windows
+/// editors save text) parses as the file without it, and its errors keep
+/// their lines and columns (those an editor shows, which hides the mark).
+#[test]
+fn scenes_with_a_byte_order_mark_parse() {
+    let json = r#"{"camera": {"eye": [0, 0, 5], "target": [0, 0, 0]}}"#;
+    let file = Path::new("bom.json");
+    let plain = SceneDesc::parse(json, file).unwrap_or_else(|e| panic!("{e}"));
+    let marked = SceneDesc::parse(&format!("\u{feff}{json}"), file);
+    assert_eq!(
+        format!("{:?}", marked.unwrap_or_else(|e| panic!("{e}"))),
+        format!("{plain:?}")
+    );
+    let bad = "{\"camera\": {}}";
+    assert_eq!(scene_err(&format!("\u{feff}{bad}")), scene_err(bad));
+    let msg = scene_err(bad);
+    assert!(
+        msg.contains("bad.json:1:13") && msg.contains("missing field `eye`"),
+        "{msg}"
+    );
+}
+
 /// Radiance errors of a tessellated unit sphere under a directional light
 /// (Lambert, no ambient), against the exact sphere's `kd · I · cos θ` at
 /// each hit, over the lit pixels of an orthographic view: the largest

@@ -57,7 +57,7 @@ impl Format {
     /// The format recognized from the first bytes of a file.
     #[must_use]
     pub fn sniff(bytes: &[u8]) -> Option<Self> {
-        let start = bytes.trim_ascii_start();
+        let start = text::strip_bom(bytes).trim_ascii_start();
         if start.starts_with(b"ply") {
             Some(Self::Ply)
         } else if start.starts_with(b"OFF")

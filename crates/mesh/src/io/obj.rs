@@ -3,7 +3,7 @@
 //! indices, and `\` line continuations. Every other statement (texture
 //! coordinates, normals, groups, materials, lines, points) is skipped.
 
-use super::text::{lines, parse_int, parse_vec3, pieces, read_lines, show, tokens};
+use super::text::{lines, parse_int, parse_vec3, pieces, read_lines, show, strip_bom, tokens, BOM};
 use crate::{ErrorKind, IndexedMesh, MeshError};
 use raymesh_geometry::Vec3;
 use rayon::prelude::*;
@@ -13,7 +13,7 @@ use rayon::prelude::*;
 const CHUNK: usize = 1 << 20;
 
 pub(super) fn read(bytes: &[u8]) -> Result<IndexedMesh, MeshError> {
-    read_chunked(bytes, CHUNK)
+    read_chunked(strip_bom(bytes), CHUNK)
 }
 
 /// One chunk's statements, parsed up to its first error (if any).
@@ -53,9 +53,14 @@ pub(super) fn read_stream(
     let (mut buf, mut face) = (Vec::new(), Vec::new());
     let (mut done, mut max_index) = (0u64, 0u32);
     loop {
-        let Some((end, eof)) = read_lines(file, &mut buf, chunk, continues)? else {
+        let Some((mut end, eof)) = read_lines(file, &mut buf, chunk, continues)? else {
             continue;
         };
+        if done == 0 && buf.starts_with(BOM) {
+            // A byte-order mark (see `strip_bom`), counted as read.
+            buf.drain(..BOM.len());
+            (end, done) = (end - BOM.len(), BOM.len() as u64);
+        }
         // Line numbers only matter to errors, which the whole-file reader reports.
         let parsed: Vec<Chunk> = pieces(&buf[..end], (chunk / 8).max(1), continues)
             .par_iter()

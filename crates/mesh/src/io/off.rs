@@ -4,7 +4,9 @@
 //! coordinates after the required values (COFF, NOFF, STOFF) are ignored;
 //! `#` starts a comment.
 
-use super::text::{check_count, lines, parse_int, parse_vec3, pieces, read_lines, show, tokens};
+use super::text::{
+    check_count, lines, parse_int, parse_vec3, pieces, read_lines, show, strip_bom, tokens, BOM,
+};
 use crate::{ErrorKind, IndexedMesh, MeshError};
 use raymesh_geometry::Vec3;
 use rayon::prelude::*;
@@ -121,6 +123,7 @@ fn records(bytes: &[u8]) -> impl Iterator<Item = (u64, &[u8])> {
 }
 
 pub(super) fn read(bytes: &[u8]) -> Result<IndexedMesh, MeshError> {
+    let bytes = strip_bom(bytes);
     let mut it = records(bytes);
     let (nv, nf, cline) = header(&mut it, bytes.len())?;
     let cap = bytes.len() / 6;
@@ -181,9 +184,14 @@ pub(super) fn read_stream(
     let (mut done, mut record) = (0u64, 0usize);
     loop {
         // Complete lines only (OFF lines do not continue).
-        let Some((end, eof)) = read_lines(file, &mut buf, chunk, |_| false)? else {
+        let Some((mut end, eof)) = read_lines(file, &mut buf, chunk, |_| false)? else {
             continue;
         };
+        if done == 0 && counts.is_none() && buf.starts_with(BOM) {
+            // A byte-order mark (see `strip_bom`), counted as read.
+            buf.drain(..BOM.len());
+            (end, done) = (end - BOM.len(), BOM.len() as u64);
+        }
         let mut from = 0;
         if counts.is_none() {
             // The header: parsed again from the start as lines come in

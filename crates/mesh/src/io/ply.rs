@@ -222,6 +222,13 @@ fn parse_header(bytes: &[u8]) -> Result<Header, MeshError> {
             .map_or(bytes.len(), |i| pos + i);
         let raw = &bytes[pos..end];
         let l = raw.strip_suffix(b"\r").unwrap_or(raw);
+        // A byte-order mark before `ply` (see `strip_bom`); the data's
+        // byte offsets stay the file's.
+        let l = if pos == 0 {
+            super::text::strip_bom(l)
+        } else {
+            l
+        };
         pos = (end + 1).min(bytes.len());
         line += 1;
         let toks: Vec<&[u8]> = super::text::tokens(l).collect();

@@ -23,10 +23,12 @@ pub(super) fn read(bytes: &[u8]) -> Result<IndexedMesh, MeshError> {
     if is_binary(bytes) {
         return read_binary(bytes);
     }
-    let head = &bytes[..bytes.len().min(1024)];
+    // Text, possibly after a byte-order mark (see `strip_bom`).
+    let text = super::text::strip_bom(bytes);
+    let head = &text[..text.len().min(1024)];
     let looks_text = !head.iter().any(|&b| b == 0 || b > 127);
-    if bytes.trim_ascii_start().starts_with(b"solid") && looks_text {
-        return read_ascii(bytes);
+    if text.trim_ascii_start().starts_with(b"solid") && looks_text {
+        return read_ascii(text);
     }
     if bytes.len() < 84 {
         return Err(MeshError::at_byte(

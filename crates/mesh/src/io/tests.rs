@@ -963,3 +963,82 @@ fn read_mesh_with_reports_progress_to_the_end() {
     assert_eq!(calls.last(), Some(&(size, size)));
     assert_eq!(mesh.triangles(), vec![[0, 1, 2]]);
 }
+
+/// A file that starts with a UTF-8 byte-order mark (as some Windows tools
+/// write text) reads as the same file without it, in every format, by
+/// the whole-file readers, the streamed ones at any chunk size, and with
+/// the format sniffed from the content; errors keep their lines, and a
+/// binary PLY's byte offsets stay the file's (three more).
+#[test]
+fn a_byte_order_mark_is_read_past() {
+    let m = sample();
+    let mut files: Vec<(Format, Vec<u8>)> = Vec::new();
+    for f in [Format::Obj, Format::Off] {
+        let mut b = Vec::new();
+        if f == Format::Obj {
+            write_obj(&mut b, &m).unwrap();
+        } else {
+            write_off(&mut b, &m).unwrap();
+        }
+        files.push((f, b));
+    }
+    for enc in [PlyEncoding::Ascii, PlyEncoding::BinaryLittleEndian] {
+        let mut b = Vec::new();
+        write_ply(&mut b, &m, enc).unwrap();
+        files.push((Format::Ply, b));
+    }
+    files.push((
+        Format::Stl,
+        b"solid t\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nvertex 0 1 0\n\
+          endloop\nendfacet\nendsolid t\n"
+            .to_vec(),
+    ));
+    for (f, plain) in &files {
+        let marked = [text::BOM, plain].concat();
+        let want = read_bytes(plain, *f).unwrap();
+        assert_eq!(read_bytes(&marked, *f).unwrap(), want, "{f:?}");
+        assert_eq!(Format::sniff(&marked), Some(*f), "{f:?}");
+        for chunk in [1, 2, 3, 4, 7, 64, 1 << 20] {
+            let (a, b) = (
+                streamed_as(&marked, chunk, *f),
+                streamed_as(plain, chunk, *f),
+            );
+            assert_eq!(a, b, "{f:?}, chunks of {chunk}");
+        }
+    }
+    // Errors: the same line; a binary PLY's offset three bytes on.
+    let bad_obj = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n";
+    let (a, b) = (
+        err(bad_obj, Format::Obj),
+        err(&[text::BOM, bad_obj].concat(), Format::Obj),
+    );
+    assert_eq!(
+        (a.location, a.kind.to_string()),
+        (b.location, b.kind.to_string())
+    );
+    let bad_off = b"OFF\n3 1 0\n0 0 0\n1 0 0\nx 1 0\n3 0 1 2\n";
+    let (a, b) = (
+        err(bad_off, Format::Off),
+        err(&[text::BOM, bad_off].concat(), Format::Off),
+    );
+    assert_eq!(
+        (a.location, a.kind.to_string()),
+        (b.location, b.kind.to_string())
+    );
+    let (_, ply) = &files[3];
+    let cut = &ply[..ply.len() - 2];
+    let (a, b) = (
+        err(cut, Format::Ply),
+        err(&[text::BOM, cut].concat(), Format::Ply),
+    );
+    let (Location::Byte(x), Location::Byte(y)) = (a.location, b.location) else {
+        panic!("{a} / {b}")
+    };
+    assert_eq!((y, b.kind.to_string()), (x + 3, a.kind.to_string()));
+    // A mark elsewhere is no mark: still an error.
+    assert!(read_bytes(
+        &[b"v 0 0 0\n", text::BOM, b"v 1 0 0\n"].concat(),
+        Format::Obj
+    )
+    .is_err());
+}

@@ -3,6 +3,17 @@
 use crate::{ErrorKind, MeshError};
 use raymesh_geometry::Vec3;
 
+/// The UTF-8 byte-order mark some Windows tools write at the start of a
+/// text file.
+pub(crate) const BOM: &[u8] = b"\xef\xbb\xbf";
+
+/// `bytes` without a leading UTF-8 byte-order mark ([`BOM`]): the text
+/// formats read a file that starts with one as the file without it (line
+/// numbers are the same; an editor does not show the mark).
+pub(crate) fn strip_bom(bytes: &[u8]) -> &[u8] {
+    bytes.strip_prefix(BOM).unwrap_or(bytes)
+}
+
 /// Splits `bytes` into pieces of about `chunk` bytes, each ending after a
 /// line end whose line does not continue (`continues(line)`, the line
 /// without its `\n`, is false) or at the end of `bytes`: the units a
