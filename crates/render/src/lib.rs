@@ -13,7 +13,11 @@ mod world;
 
 pub use camera::Camera;
 pub use demo::{demo_scene, torus_knot};
-pub use desc::{SceneDesc, SceneError};
+pub use desc::{
+    AmbientDesc, CameraDesc, DirectionalDesc, ImageDesc, LightDesc, MaterialDesc, MeshDesc,
+    PointDesc, Rgb, SceneDesc, SceneError, Shading, SphereDesc, SurfaceDesc, TransformDesc,
+    TriangleDesc,
+};
 pub use image_out::{heat_color, save_png, to_srgb8};
 pub use render::{render, Mode, Options, Rendered};
 pub use world::{Light, Material, World, WorldBytes};

@@ -61,6 +61,9 @@ pub fn run(args: &Args) -> Result<()> {
     if args.teapot.is_some() && args.kind != Kind::TeapotInStadium {
         bail!("--teapot goes with teapot-in-stadium");
     }
+    if let Some(teapot) = &args.teapot {
+        crate::cmd::refuse_output_over_input(&args.output, &[("--teapot mesh", teapot)])?;
+    }
     let start = Instant::now();
     let mesh = match args.kind {
         Kind::Terrain => synthetic::terrain(args.triangles),

@@ -21,6 +21,48 @@ pub fn parse_fraction(s: &str) -> Result<f32, String> {
     }
 }
 
+/// Whether `a` and `b` name the same existing file (through links too:
+/// the same device and inode on Unix, the same canonical path elsewhere).
+pub fn same_file(a: &std::path::Path, b: &std::path::Path) -> bool {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::MetadataExt;
+        match (std::fs::metadata(a), std::fs::metadata(b)) {
+            (Ok(x), Ok(y)) => x.dev() == y.dev() && x.ino() == y.ino(),
+            _ => false,
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        match (a.canonicalize(), b.canonicalize()) {
+            (Ok(x), Ok(y)) => x == y,
+            _ => false,
+        }
+    }
+}
+
+/// Refuses an output that is one of the command's inputs (`inputs`: what
+/// each is, and its path), before any work: writing it would destroy the
+/// input the user gave (`raymesh subdivide m.off -o m.off`, or `raymesh
+/// rays m.off -o m.off` by a slip of the keyboard). Any other existing
+/// file named as the output is overwritten, as asked.
+pub fn refuse_output_over_input(
+    output: &std::path::Path,
+    inputs: &[(&str, &std::path::Path)],
+) -> anyhow::Result<()> {
+    for (what, input) in inputs {
+        if same_file(output, input) {
+            anyhow::bail!(
+                "{}: this is the input {what} {}; writing the output there would destroy it \
+                 (choose another output name)",
+                output.display(),
+                input.display()
+            );
+        }
+    }
+    Ok(())
+}
+
 /// A rayon pool of `threads` workers (all cores when `None`).
 pub fn thread_pool(threads: Option<usize>) -> anyhow::Result<rayon::ThreadPool> {
     let mut b = rayon::ThreadPoolBuilder::new();

@@ -241,6 +241,9 @@ pub fn run(args: &Args) -> Result<()> {
     raymesh_accel::set_simd_enabled(!args.no_simd);
     let pool = crate::cmd::thread_pool(args.threads)?;
     let threads = pool.current_num_threads();
+    if let Some(out) = &args.out {
+        crate::cmd::refuse_output_over_input(out, &[("mesh", &args.mesh), ("rays", &args.rays)])?;
+    }
     let mut mesh = crate::cmd::read_mesh(&args.mesh)?;
     let rays = npy::read_rays(&args.rays)?;
     // The corner copy the scene gathers is all a trace needs: the mesh

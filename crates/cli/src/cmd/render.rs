@@ -202,6 +202,23 @@ pub fn run(args: &Args) -> Result<()> {
             .as_str(),
         ),
     };
+    if let Some(input) = &args.input {
+        // The scene or mesh given, and the mesh files a scene names.
+        let scene = input
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("json"));
+        let what = if scene { "scene" } else { "mesh" };
+        let mut inputs = vec![(what, input.clone())];
+        for s in &desc.surfaces {
+            if let raymesh_render::SurfaceDesc::Mesh(m) = s {
+                if !m.file.starts_with("builtin:") {
+                    inputs.push(("mesh", base.join(&m.file)));
+                }
+            }
+        }
+        let inputs: Vec<(&str, &Path)> = inputs.iter().map(|(w, p)| (*w, p.as_path())).collect();
+        crate::cmd::refuse_output_over_input(&out, &inputs)?;
+    }
     let step = crate::cmd::stage("reading meshes and building structures".to_string());
     let world = pool.install(|| World::build(&desc, &file, &mesh_loader(base)))?;
     step.finish_and_clear();
