@@ -253,6 +253,16 @@ pub struct World {
     epsilon: f32,
 }
 
+/// A scene value for an error message: an infinite one is what a number
+/// past `f32`'s range (about 3.4e38) in the file reads as.
+fn shown(x: f32) -> String {
+    if x.is_infinite() {
+        format!("{x} (or a number past f32's range, about 3.4e38)")
+    } else {
+        x.to_string()
+    }
+}
+
 fn v3(a: [f32; 3]) -> Vec3 {
     Vec3::from_array(a)
 }
@@ -307,7 +317,39 @@ impl World {
                 "samples per pixel must be within 1..=4096".into(),
             ));
         }
+        // Colours, intensities and exponents: finite and not negative (a
+        // negative one subtracts light, an infinite one makes NaN pixels:
+        // neither is what a scene means). A value past `f32`'s range reads
+        // as infinite.
+        let amount = |path: String, x: f32| -> Result<(), SceneError> {
+            if x.is_finite() && x >= 0.0 {
+                Ok(())
+            } else {
+                Err(err(
+                    path,
+                    format!("expected a finite value of at least 0, got {}", shown(x)),
+                ))
+            }
+        };
+        let color = |path: String, c: [f32; 3]| -> Result<(), SceneError> {
+            for (k, &x) in c.iter().enumerate() {
+                amount(format!("{path}[{k}]"), x)?;
+            }
+            Ok(())
+        };
+        let point = |path: String, p: [f32; 3]| -> Result<(), SceneError> {
+            match p.iter().position(|x| !x.is_finite()) {
+                None => Ok(()),
+                Some(k) => Err(err(
+                    format!("{path}[{k}]"),
+                    format!("expected a finite coordinate, got {}", shown(p[k])),
+                )),
+            }
+        };
+        color("image.background".into(), img.background)?;
         let c = &desc.camera;
+        point("camera.eye".into(), c.eye)?;
+        point("camera.target".into(), c.target)?;
         let camera = Camera::look_at(
             v3(c.eye),
             v3(c.target),
@@ -326,6 +368,15 @@ impl World {
         let mut names: HashMap<&str, u32> = HashMap::new();
         let mut materials = vec![Material::default()];
         for (name, m) in &desc.materials {
+            let at = |key: &str| format!("materials.{name}.{key}");
+            color(at("ambient"), m.ambient)?;
+            color(at("diffuse"), m.diffuse)?;
+            color(at("specular"), m.specular)?;
+            match m.mirror {
+                crate::desc::Rgb::Grey(g) => amount(at("mirror"), g)?,
+                crate::desc::Rgb::Rgb(c) => color(at("mirror"), c)?,
+            }
+            amount(at("shininess"), m.shininess)?;
             names.insert(name, materials.len() as u32);
             materials.push(Material {
                 ambient: v3(m.ambient),
@@ -357,6 +408,29 @@ impl World {
 
         let (mut ambient, mut lights) = (Vec3::ZERO, Vec::new());
         for (i, l) in desc.lights.iter().enumerate() {
+            let at = |key: &str| format!("lights[{i}].{key}");
+            let (LightDesc::Ambient(AmbientDesc {
+                color: c,
+                intensity,
+                ..
+            })
+            | LightDesc::Point(PointDesc {
+                color: c,
+                intensity,
+                ..
+            })
+            | LightDesc::Directional(DirectionalDesc {
+                color: c,
+                intensity,
+                ..
+            })) = l;
+            color(at("color"), *c)?;
+            amount(at("intensity"), *intensity)?;
+            match l {
+                LightDesc::Point(p) => point(at("position"), p.position)?,
+                LightDesc::Directional(d) => point(at("direction"), d.direction)?,
+                LightDesc::Ambient(_) => {}
+            }
             match l {
                 LightDesc::Ambient(AmbientDesc {
                     color, intensity, ..
@@ -408,8 +482,15 @@ impl World {
                     material: m,
                     ..
                 }) => {
-                    if !(*radius > 0.0 && radius.is_finite() && v3(*center).is_finite()) {
-                        return Err(err(at("radius"), format!("a sphere needs a finite centre and a positive radius, got {radius}")));
+                    point(at("center"), *center)?;
+                    if !(*radius > 0.0 && radius.is_finite()) {
+                        return Err(err(
+                            at("radius"),
+                            format!(
+                                "a sphere needs a finite centre and a positive radius, got {}",
+                                shown(*radius)
+                            ),
+                        ));
                     }
                     shapes.push(Shape::Sphere(Sphere::new(v3(*center), *radius)));
                     shape_materials.push(material(m, at("material"))?);
@@ -419,6 +500,9 @@ impl World {
                     material: m,
                     ..
                 }) => {
+                    for (k, &p) in vertices.iter().enumerate() {
+                        point(at(&format!("vertices[{k}]")), p)?;
+                    }
                     shapes.push(Shape::Triangle(vertices.map(v3)));
                     shape_materials.push(material(m, at("material"))?);
                     triangles += 1;
