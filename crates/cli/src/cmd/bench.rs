@@ -29,13 +29,13 @@ pub struct Args {
     #[arg(long, default_value = "primary,random,diffuse,shadow")]
     pub workloads: String,
     /// Image width and height of the workloads (random: the square root of the ray count).
-    #[arg(long, default_value_t = 1024)]
+    #[arg(long, default_value_t = 1024, value_parser = clap::value_parser!(u32).range(1..=8192))]
     pub size: u32,
     /// Thread counts, comma-separated (default: 1 and all cores).
     #[arg(long)]
     pub threads: Option<String>,
     /// Timed repeats; the best is reported.
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..))]
     pub repeat: u32,
     /// Aim the workloads at this box instead of each mesh's whole box:
     /// `minx,miny,minz,maxx,maxy,maxz` (as `raymesh rays --frame`).
@@ -117,13 +117,17 @@ pub fn run(args: &Args) -> Result<()> {
     let threads: Vec<usize> = match &args.threads {
         Some(t) => t
             .split(',')
-            .map(|x| x.trim().parse::<usize>())
-            .collect::<Result<_, _>>()?,
+            .map(|x| {
+                x.trim()
+                    .parse::<usize>()
+                    .map_err(|_| anyhow::anyhow!("--threads: '{x}' is not a thread count"))
+            })
+            .collect::<Result<_>>()?,
         None if all > 1 => vec![1, all],
         None => vec![1],
     };
-    if threads.contains(&0) || args.size == 0 || args.size > 8192 {
-        bail!("thread counts must be at least 1 and --size within 1..=8192");
+    if threads.contains(&0) {
+        bail!("--threads: thread counts must be at least 1");
     }
     let pools: Vec<rayon::ThreadPool> = threads
         .iter()
@@ -183,7 +187,7 @@ pub fn run(args: &Args) -> Result<()> {
                 for (pool, &t) in pools.iter().zip(&threads) {
                     let mut time = |any: bool| {
                         let mut best = f64::INFINITY;
-                        for _ in 0..args.repeat.max(1) {
+                        for _ in 0..args.repeat {
                             let s = Instant::now();
                             pool.install(|| trace_with(&scene, rs, any, &mut hits));
                             best = best.min(s.elapsed().as_secs_f64());

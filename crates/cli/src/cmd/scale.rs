@@ -27,10 +27,10 @@ pub struct Args {
     #[arg(long)]
     pub threads: Option<String>,
     /// Width and height of the primary-ray image traced at every size.
-    #[arg(long, default_value_t = 256)]
+    #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u32).range(1..=8192))]
     pub size: u32,
     /// Timed repeats of each build and each trace; the best is reported.
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..))]
     pub repeat: u32,
     /// Write a log-log chart (SVG) of build speed, trace speed and cost per
     /// ray against the triangle count. Overwritten if it exists.
@@ -106,8 +106,8 @@ pub fn run(args: &Args) -> Result<()> {
         None if all > 1 => vec![1, all],
         None => vec![1],
     };
-    if threads.contains(&0) || args.size == 0 || args.size > 8192 || args.repeat == 0 {
-        bail!("thread counts and --repeat must be at least 1, --size within 1..=8192");
+    if threads.contains(&0) {
+        bail!("--threads: thread counts must be at least 1");
     }
     if let Some(chart) = &args.chart {
         if chart.extension().and_then(|e| e.to_str()) != Some("svg") {
