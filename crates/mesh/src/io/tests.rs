@@ -1007,24 +1007,18 @@ fn a_byte_order_mark_is_read_past() {
         }
     }
     // Errors: the same line; a binary PLY's offset three bytes on.
-    let bad_obj = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n";
-    let (a, b) = (
-        err(bad_obj, Format::Obj),
-        err(&[text::BOM, bad_obj].concat(), Format::Obj),
-    );
-    assert_eq!(
-        (a.location, a.kind.to_string()),
-        (b.location, b.kind.to_string())
-    );
-    let bad_off = b"OFF\n3 1 0\n0 0 0\n1 0 0\nx 1 0\n3 0 1 2\n";
-    let (a, b) = (
-        err(bad_off, Format::Off),
-        err(&[text::BOM, bad_off].concat(), Format::Off),
-    );
-    assert_eq!(
-        (a.location, a.kind.to_string()),
-        (b.location, b.kind.to_string())
-    );
+    let bad: [(&[u8], Format); 2] = [
+        (b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n", Format::Obj),
+        (b"OFF\n3 1 0\n0 0 0\n1 0 0\nx 1 0\n3 0 1 2\n", Format::Off),
+    ];
+    for (bytes, f) in bad {
+        let (a, b) = (err(bytes, f), err(&[text::BOM, bytes].concat(), f));
+        assert_eq!(
+            (a.location, a.kind.to_string()),
+            (b.location, b.kind.to_string()),
+            "{f:?}"
+        );
+    }
     let (_, ply) = &files[3];
     let cut = &ply[..ply.len() - 2];
     let (a, b) = (
