@@ -42,7 +42,8 @@ pub fn same_file(a: &std::path::Path, b: &std::path::Path) -> bool {
 }
 
 /// Refuses an output that is one of the command's inputs (`inputs`: what
-/// each is, and its path), before any work: writing it would destroy the
+/// each is, and its path), called before the command's work (`render`
+/// reads a mesh first, to frame it): writing it would destroy the
 /// input the user gave (`raymesh subdivide m.off -o m.off`, or `raymesh
 /// rays m.off -o m.off` by a slip of the keyboard). Any other existing
 /// file named as the output is overwritten, as asked.
