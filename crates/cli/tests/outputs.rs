@@ -5,7 +5,7 @@ mod common;
 use common::{data, fails_with, raymesh, run_ok, tmpdir, write_rays};
 use std::path::Path;
 
-/// Every command that writes a file refuses, before any work, an output
+/// Every command that writes a file refuses, before it builds or writes, an output
 /// that is one of its inputs (named the same way, by another path, or
 /// through a link), and leaves that input as it was; an output that is
 /// some other existing file is overwritten, as asked.
