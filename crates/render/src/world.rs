@@ -318,9 +318,10 @@ impl World {
             ));
         }
         // Colours, intensities and exponents: finite and not negative (a
-        // negative one subtracts light, an infinite one makes NaN pixels:
-        // neither is what a scene means). A value past `f32`'s range reads
-        // as infinite.
+        // negative intensity subtracted light and drew a lit sphere black,
+        // an infinite one drew it white, a light placed past `f32`'s range
+        // left it black: none is what a scene means). A value past `f32`'s
+        // range reads as infinite.
         let amount = |path: String, x: f32| -> Result<(), SceneError> {
             if x.is_finite() && x >= 0.0 {
                 Ok(())
