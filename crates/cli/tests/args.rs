@@ -7,9 +7,9 @@ use common::{data, fails_with, raymesh};
 /// `bench` and `scale` refuse a zero or malformed repeat count, image size
 /// or thread count with a message naming the flag (`bench --repeat 0` ran
 /// once and said nothing; `--threads 1,x` said "invalid digit found in
-/// string").
+/// string"), and every command more than 1,024 threads.
 #[test]
-fn bench_and_scale_refuse_bad_counts() {
+fn commands_refuse_bad_counts() {
     let mesh = data("tetrahedron.off");
     for cmd in ["bench", "scale"] {
         let base = || {
@@ -28,5 +28,19 @@ fn bench_and_scale_refuse_bad_counts() {
             "--threads: thread counts must be at least 1",
         );
         fails_with(base().args(["--threads", "1,x"]), "--threads:");
+        fails_with(
+            base().args(["--threads", "1,100000"]),
+            "at most 1024 worker threads",
+        );
     }
+    // One thread count: `raycast` and `render` (100,000 threads ran for
+    // minutes before; the check comes before any file is read).
+    fails_with(
+        raymesh().args(["raycast", "m.off", "--rays", "r.npy", "--threads", "100000"]),
+        "--threads 100000: at most 1024 worker threads",
+    );
+    fails_with(
+        raymesh().args(["render", "--threads", "100000"]),
+        "--threads 100000: at most 1024 worker threads",
+    );
 }

@@ -31,7 +31,7 @@ pub struct Args {
     /// Image width and height of the workloads (random: the square root of the ray count).
     #[arg(long, default_value_t = 1024, value_parser = clap::value_parser!(u32).range(1..=8192))]
     pub size: u32,
-    /// Thread counts, comma-separated (default: 1 and all cores).
+    /// Thread counts, comma-separated, each 1 to 1024 (default: 1 and all cores).
     #[arg(long)]
     pub threads: Option<String>,
     /// Timed repeats; the best is reported.

@@ -64,11 +64,24 @@ pub fn refuse_output_over_input(
     Ok(())
 }
 
-/// A rayon pool of `threads` workers (all cores when `None`).
+/// The most worker threads a command takes: more than the largest
+/// machines have cores, and far below where a pool stops being usable
+/// (on the 2-core VM, `raycast --threads 2000` on a tetrahedron took 2.7
+/// s, 20000 over a minute, all of it the pool's threads starting and
+/// waiting on one another).
+pub const MAX_THREADS: usize = 1024;
+
+/// A rayon pool of `threads` workers (all cores when `None`), at least
+/// one and at most [`MAX_THREADS`].
 pub fn thread_pool(threads: Option<usize>) -> anyhow::Result<rayon::ThreadPool> {
     let mut b = rayon::ThreadPoolBuilder::new();
     if let Some(n) = threads {
         anyhow::ensure!(n >= 1, "--threads must be at least 1");
+        anyhow::ensure!(
+            n <= MAX_THREADS,
+            "--threads {n}: at most {MAX_THREADS} worker threads (this machine has {})",
+            std::thread::available_parallelism().map_or(1, usize::from)
+        );
         b = b.num_threads(n);
     }
     Ok(b.build()?)

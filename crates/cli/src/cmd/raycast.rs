@@ -28,7 +28,7 @@ pub struct Args {
     /// Any-hit queries (shadow rays): a hit record names the first hit found, not the closest.
     #[arg(long)]
     pub any_hit: bool,
-    /// Worker threads (default: all cores).
+    /// Worker threads, 1 to 1024 (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
     /// Trace the rays this many times and report the best time.

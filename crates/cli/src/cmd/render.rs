@@ -44,7 +44,7 @@ pub struct Args {
     /// Samples per pixel (overrides the scene's).
     #[arg(long)]
     pub spp: Option<u32>,
-    /// Worker threads (default: all cores).
+    /// Worker threads, 1 to 1024 (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
     /// Show what each pixel's camera rays cost (nodes visited + primitives tested) instead of shading.

@@ -23,7 +23,7 @@ pub struct Args {
     /// Structures, comma-separated.
     #[arg(long, default_value = "bvh8")]
     pub accel: String,
-    /// Thread counts, comma-separated (default: 1 and all cores).
+    /// Thread counts, comma-separated, each 1 to 1024 (default: 1 and all cores).
     #[arg(long)]
     pub threads: Option<String>,
     /// Width and height of the primary-ray image traced at every size.
