@@ -61,6 +61,25 @@ impl AccelKind {
     /// by 1.1–1.6× (binned SAH stays the fastest to build).
     pub const FASTEST_BVH: AccelKind = Self::Bvh8;
 
+    /// Whether this is a bounding volume hierarchy, which a reinsertion
+    /// pass can rearrange ([`BuildConfig::optimize`]; the other kinds
+    /// ignore it).
+    #[must_use]
+    pub fn is_bvh(self) -> bool {
+        matches!(
+            self,
+            Self::BvhMedian | Self::BvhBinned | Self::BvhSweep | Self::Bvh4 | Self::Bvh8
+        )
+    }
+
+    /// Whether the build takes spatial splits
+    /// ([`BuildConfig::spatial_splits`]; the binned SAH builder and the
+    /// wide trees collapsed from it; the other kinds ignore them).
+    #[must_use]
+    pub fn takes_spatial_splits(self) -> bool {
+        matches!(self, Self::BvhBinned | Self::Bvh4 | Self::Bvh8)
+    }
+
     /// The name tools use (`--accel NAME`).
     #[must_use]
     pub fn name(self) -> &'static str {

@@ -285,6 +285,28 @@ fn bad_inputs_are_clear_errors() {
             "{err}"
         );
     }
+    // Flags the structure would ignore are refused, not dropped quietly.
+    for (accel, flag) in [
+        ("grid", "--spatial-splits"),
+        ("kdtree", "--spatial-splits"),
+        ("bvh-sweep", "--spatial-splits"),
+        ("bvh-median", "--spatial-splits"),
+        ("brute", "--optimize"),
+        ("grid", "--optimize"),
+        ("kdtree", "--optimize"),
+    ] {
+        fails_with(
+            raymesh()
+                .arg("raycast")
+                .arg(&mesh)
+                .args(["--rays", "x.npy", "--accel", accel, flag]),
+            &format!("{flag} "),
+        );
+        fails_with(
+            raymesh().args(["render", "--accel", accel, flag]),
+            &format!("{flag} "),
+        );
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -394,4 +416,50 @@ fn bench_traces_as_packets_or_streams() {
         .unwrap();
     assert!(!both.status.success());
     assert!(String::from_utf8_lossy(&both.stderr).contains("cannot be used with"));
+}
+
+/// `bench --spatial-splits --optimize` over several structures reports, per
+/// row, what that structure's build took: the settings apply to the BVHs
+/// that take them and no other (the grid's rows had said 0.25 and true).
+#[test]
+fn bench_rows_say_which_builds_took_the_settings() {
+    let out = run_ok(raymesh().arg("bench").arg(data("tetrahedron.off")).args([
+        "--size",
+        "4",
+        "--repeat",
+        "1",
+        "--threads",
+        "1",
+        "--workloads",
+        "primary",
+        "--accel",
+        "bvh8,bvh-sweep,grid,kdtree",
+        "--spatial-splits",
+        "--optimize",
+        "--json",
+    ]));
+    let rows: Vec<serde_json::Value> = out
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let got: Vec<(String, f64, bool)> = rows
+        .iter()
+        .map(|r| {
+            (
+                r["accel"].as_str().unwrap().to_string(),
+                r["spatial_splits"].as_f64().unwrap(),
+                r["optimize"].as_bool().unwrap(),
+            )
+        })
+        .collect();
+    let want = [
+        ("bvh8", 0.25, true),
+        ("bvh-sweep", 0.0, true),
+        ("grid", 0.0, false),
+        ("kdtree", 0.0, false),
+    ];
+    assert_eq!(got.len(), want.len(), "{out}");
+    for ((a, s, o), (wa, ws, wo)) in got.iter().zip(want) {
+        assert_eq!((a.as_str(), *s, *o), (wa, ws, wo), "{out}");
+    }
 }

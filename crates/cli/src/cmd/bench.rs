@@ -214,8 +214,14 @@ pub fn run(args: &Args) -> Result<()> {
                         any_hit_mrays_per_s: any,
                         nodes_per_ray,
                         triangles_per_ray: tris_per_ray,
-                        spatial_splits: config.spatial_splits,
-                        optimize: config.optimize,
+                        // What this structure's build took: the others
+                        // ignore these settings.
+                        spatial_splits: if accel.takes_spatial_splits() {
+                            config.spatial_splits
+                        } else {
+                            0.0
+                        },
+                        optimize: config.optimize && accel.is_bvh(),
                         packets: args.packets,
                         stream: args.stream,
                     });

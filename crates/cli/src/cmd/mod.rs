@@ -64,6 +64,29 @@ pub fn refuse_output_over_input(
     Ok(())
 }
 
+/// Refuses `--spatial-splits` or `--optimize` with a structure that
+/// would ignore it (`--accel grid --spatial-splits` built a grid and
+/// reported the run as one with spatial splits).
+pub fn check_build_flags(
+    accel: raymesh_accel::AccelKind,
+    spatial_splits: bool,
+    optimize: bool,
+) -> anyhow::Result<()> {
+    if spatial_splits && !accel.takes_spatial_splits() {
+        anyhow::bail!(
+            "--spatial-splits applies to bvh-binned, bvh4 and bvh8 (and bvh), not {}",
+            accel.name()
+        );
+    }
+    if optimize && !accel.is_bvh() {
+        anyhow::bail!(
+            "--optimize rearranges BVHs (bvh-median, bvh-binned, bvh-sweep, bvh4, bvh8), not {}",
+            accel.name()
+        );
+    }
+    Ok(())
+}
+
 /// The most worker threads a command takes: more than the largest
 /// machines have cores, and far below where a pool stops being usable
 /// (on the 2-core VM, `raycast --threads 2000` on a tetrahedron took 2.7

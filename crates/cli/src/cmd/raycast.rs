@@ -239,6 +239,7 @@ pub fn count(scene: &Scene<Triangles>, rays: &[Ray], any_hit: bool) -> (f64, f64
 /// Runs the command.
 pub fn run(args: &Args) -> Result<()> {
     raymesh_accel::set_simd_enabled(!args.no_simd);
+    crate::cmd::check_build_flags(args.accel, args.spatial_splits.is_some(), args.optimize)?;
     let pool = crate::cmd::thread_pool(args.threads)?;
     let threads = pool.current_num_threads();
     if let Some(out) = &args.out {

@@ -143,6 +143,11 @@ fn free_name(stem: &str) -> PathBuf {
 
 /// Runs the command.
 pub fn run(args: &Args) -> Result<()> {
+    // The flags given together contradict each other (a scene file's
+    // settings apply to its meshes' BVHs and are documented so).
+    if let Some(a) = args.accel {
+        crate::cmd::check_build_flags(a, args.spatial_splits.is_some(), args.optimize)?;
+    }
     let pool = crate::cmd::thread_pool(args.threads)?;
     let (mut desc, file, base, stem) = match &args.input {
         None => (
