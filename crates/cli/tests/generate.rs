@@ -67,6 +67,22 @@ fn generate_writes_meshes_of_the_asked_size() {
             .arg(&terrain),
         "--triangles",
     );
+    // The stadium's count is checked as the teapot's is (a hundred
+    // billion aborted on a failed allocation).
+    for n in ["0", "99999999999"] {
+        fails_with(
+            raymesh()
+                .args([
+                    "generate",
+                    "teapot-in-stadium",
+                    "--stadium-triangles",
+                    n,
+                    "-o",
+                ])
+                .arg(&terrain),
+            "--stadium-triangles must be between 1 and",
+        );
+    }
     fails_with(
         raymesh()
             .args(["generate", "sphere", "--teapot"])

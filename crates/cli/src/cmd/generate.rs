@@ -52,11 +52,16 @@ pub fn run(args: &Args) -> Result<()> {
             args.output.display()
         );
     }
-    if args.triangles == 0 || args.triangles > (u32::MAX / 4) as usize {
-        bail!(
-            "--triangles must be between 1 and {} (32-bit indices)",
-            u32::MAX / 4
-        );
+    for (flag, n) in [
+        ("--triangles", args.triangles),
+        ("--stadium-triangles", args.stadium_triangles),
+    ] {
+        if n == 0 || n > (u32::MAX / 4) as usize {
+            bail!(
+                "{flag} must be between 1 and {} (32-bit indices)",
+                u32::MAX / 4
+            );
+        }
     }
     if args.teapot.is_some() && args.kind != Kind::TeapotInStadium {
         bail!("--teapot goes with teapot-in-stadium");
