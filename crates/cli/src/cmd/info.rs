@@ -49,13 +49,49 @@ pub fn run(args: &Args) -> Result<()> {
             println!("bounding box           (empty)");
         } else {
             let (a, b) = (s.bbox.min, s.bbox.max);
-            println!(
-                "bounding box           [{}, {}, {}] .. [{}, {}, {}]",
-                a.x, a.y, a.z, b.x, b.y, b.z
-            );
+            let [ax, ay, az, bx, by, bz] = [a.x, a.y, a.z, b.x, b.y, b.z].map(coord);
+            println!("bounding box           [{ax}, {ay}, {az}] .. [{bx}, {by}, {bz}]");
         }
         println!("degenerate triangles   {}", s.degenerate_triangles);
         println!("unreferenced vertices  {}", s.unreferenced_vertices);
     }
     Ok(())
+}
+
+/// A coordinate as a person reads it: as written below a million and
+/// from a ten-thousandth up (`0.125`, `-3`), in scientific notation
+/// outside that (`1e38`, not thirty-nine digits; `1.5e-7`). Both forms
+/// are the value's shortest round-trip text.
+fn coord(x: f32) -> String {
+    let a = x.abs();
+    if a == 0.0 || (1e-4..1e6).contains(&a) {
+        format!("{x}")
+    } else {
+        format!("{x:e}")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::coord;
+
+    /// Coordinates read as written in the everyday range and in scientific
+    /// notation past it, each the value's own shortest text.
+    #[test]
+    fn coordinates_read_as_a_person_writes_them() {
+        for (x, want) in [
+            (0.0, "0"),
+            (-3.0, "-3"),
+            (0.125, "0.125"),
+            (0.0004, "0.0004"),
+            (123456.5, "123456.5"),
+            (1e6, "1e6"),
+            (-1e38, "-1e38"),
+            (1.5e-7, "1.5e-7"),
+            (f32::MAX, "3.4028235e38"),
+        ] {
+            assert_eq!(coord(x), want, "{x}");
+            assert_eq!(coord(x).parse::<f32>(), Ok(x));
+        }
+    }
 }
