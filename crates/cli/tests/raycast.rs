@@ -310,23 +310,38 @@ fn bad_inputs_are_clear_errors() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-#[test]
-fn bench_reports_every_structure_workload_and_thread_count() {
-    let out = run_ok(raymesh().arg("bench").arg(data("sphere.ply")).args([
-        "--size",
-        "16",
-        "--repeat",
-        "1",
-        "--threads",
-        "1,2",
-        "--accel",
-        "bvh,grid",
-        "--json",
-    ]));
-    let rows: Vec<serde_json::Value> = out
+/// `raymesh bench` of fixture `mesh` with `args` and `--json`, which must
+/// succeed: its output and the rows it parses to.
+fn bench_json(mesh: &str, args: &[&str]) -> (String, Vec<serde_json::Value>) {
+    let out = run_ok(
+        raymesh()
+            .arg("bench")
+            .arg(data(mesh))
+            .args(args)
+            .arg("--json"),
+    );
+    let rows = out
         .lines()
         .map(|l| serde_json::from_str(l).unwrap())
         .collect();
+    (out, rows)
+}
+
+#[test]
+fn bench_reports_every_structure_workload_and_thread_count() {
+    let (_, rows) = bench_json(
+        "sphere.ply",
+        &[
+            "--size",
+            "16",
+            "--repeat",
+            "1",
+            "--threads",
+            "1,2",
+            "--accel",
+            "bvh,grid",
+        ],
+    );
     assert_eq!(
         rows.len(),
         2 * 4 * 2,
@@ -423,25 +438,23 @@ fn bench_traces_as_packets_or_streams() {
 /// that take them and no other (the grid's rows had said 0.25 and true).
 #[test]
 fn bench_rows_say_which_builds_took_the_settings() {
-    let out = run_ok(raymesh().arg("bench").arg(data("tetrahedron.off")).args([
-        "--size",
-        "4",
-        "--repeat",
-        "1",
-        "--threads",
-        "1",
-        "--workloads",
-        "primary",
-        "--accel",
-        "bvh8,bvh-sweep,grid,kdtree",
-        "--spatial-splits",
-        "--optimize",
-        "--json",
-    ]));
-    let rows: Vec<serde_json::Value> = out
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect();
+    let (out, rows) = bench_json(
+        "tetrahedron.off",
+        &[
+            "--size",
+            "4",
+            "--repeat",
+            "1",
+            "--threads",
+            "1",
+            "--workloads",
+            "primary",
+            "--accel",
+            "bvh8,bvh-sweep,grid,kdtree",
+            "--spatial-splits",
+            "--optimize",
+        ],
+    );
     let got: Vec<(String, f64, bool)> = rows
         .iter()
         .map(|r| {

@@ -146,17 +146,12 @@ fn meshes_out_of_range_are_refused_plainly() {
     }
     let path = dir.join("big.off");
     std::fs::write(&path, tet(1e15)).unwrap();
-    let out = raymesh()
-        .arg("render")
-        .arg(&path)
-        .args(["--width", "8", "--height", "8", "--spp", "1", "-o"])
-        .arg(dir.join("big.png"))
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    run_ok(
+        raymesh()
+            .arg("render")
+            .arg(&path)
+            .args(["--width", "8", "--height", "8", "--spp", "1", "-o"])
+            .arg(dir.join("big.png")),
     );
     std::fs::remove_dir_all(&dir).ok();
 }
