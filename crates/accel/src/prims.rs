@@ -71,7 +71,9 @@ pub trait Primitives: Send + Sync {
         let _ = i;
         within.split(axis, pos)
     }
-    /// Ray test of primitive `i` over `[ray.tmin, tmax]` (both ends included).
+    /// Ray test of primitive `i` over `[ray.tmin, tmax]` (both ends
+    /// included): a hit's `t` lies in that interval, and so is never NaN
+    /// (the queries of [`crate::Scene`] rely on it).
     fn intersect(&self, i: u32, ray: &Ray, tmax: f32) -> Option<PrimHit>;
     /// Tests primitives `first..first + count` (`count` at most [`BLOCK`])
     /// as [`Self::intersect`] would, each against the same `tmax`: returns

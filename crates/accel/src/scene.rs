@@ -1641,13 +1641,11 @@ impl PackedHit {
     #[inline(always)]
     fn found(best: Option<(u32, PrimHit)>) -> Self {
         match best {
-            Some((prim, h)) => {
-                debug_assert!(!h.t.is_nan());
-                Self(
-                    u64::from(prim) | u64::from(h.t.to_bits()) << 32,
-                    u64::from(h.u.to_bits()) | u64::from(h.v.to_bits()) << 32,
-                )
-            }
+            // A hit's `t` is never NaN (see [`Primitives::intersect`]).
+            Some((prim, h)) => Self(
+                u64::from(prim) | u64::from(h.t.to_bits()) << 32,
+                u64::from(h.u.to_bits()) | u64::from(h.v.to_bits()) << 32,
+            ),
             None => Self::NONE,
         }
     }
