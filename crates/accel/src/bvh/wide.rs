@@ -1398,6 +1398,28 @@ fn enter<const ORDERED: bool, const W: usize>(
         stack.push(far);
         return Some(near);
     }
+    if !ORDERED {
+        // Slot order: each pushed as the next is taken, the last kept.
+        // Gathered in an array and copied onto the stack as the sort below
+        // is, each item was read back by an 8-byte load over the two
+        // 4-byte stores that made it, which the CPU cannot forward from
+        // stores still on their way to the cache. `raymesh-ab --accel bvh8
+        // --size 512` against the copy, medians of pairs, any-hit queries
+        // on the pig, bunny00, the dragon and polygon_mesh: random rays
+        // 1.03-1.05, primary 0.98-1.05, shadow 0.97-1.02.
+        // Closest hits keep the sort: sorting 64-bit keys instead, each
+        // written and read whole, cost them 1-3.5%.
+        fetch_child(nodes, far.child, far.count, prefetch_leaf);
+        stack.push(far);
+        let mut last = near;
+        while mask != 0 {
+            let item = take(&mut mask);
+            fetch_child(nodes, last.child, last.count, prefetch_leaf);
+            stack.push(last);
+            last = item;
+        }
+        return Some(last);
+    }
     // Sort the entered children by entry, farthest first.
     let mut hits = [Entry::NONE; W];
     (hits[0], hits[1]) = (far, near);
@@ -1405,7 +1427,7 @@ fn enter<const ORDERED: bool, const W: usize>(
     while mask != 0 {
         let item = take(&mut mask);
         let mut j = h;
-        while ORDERED && j > 0 && hits[j - 1].entry < item.entry {
+        while j > 0 && hits[j - 1].entry < item.entry {
             hits[j] = hits[j - 1];
             j -= 1;
         }
