@@ -1420,12 +1420,35 @@ fn enter<const ORDERED: bool, const W: usize>(
         }
         return Some(last);
     }
-    // Sort the entered children by entry, farthest first.
+    let third = take(&mut mask);
+    if mask == 0 {
+        // Three entered: the third inserted by two compare-exchanges in
+        // registers (the insertion below's order, ties to the later slot
+        // nearer), not through the array, whose items, stored field by
+        // field, the sort and the pushes copied by wider loads than the
+        // stores that made them.
+        let (mid, near) = if near.entry < third.entry {
+            (third, near)
+        } else {
+            (near, third)
+        };
+        let (far, mid) = if far.entry < mid.entry {
+            (mid, far)
+        } else {
+            (far, mid)
+        };
+        for item in [far, mid] {
+            fetch_child(nodes, item.child, item.count, prefetch_leaf);
+            stack.push(item);
+        }
+        return Some(near);
+    }
+    // Four or more: sorted by entry, farthest first, by insertion into
+    // an array.
     let mut hits = [Entry::NONE; W];
     (hits[0], hits[1]) = (far, near);
     let mut h = 2;
-    while mask != 0 {
-        let item = take(&mut mask);
+    let mut insert = |item: Entry| {
         let mut j = h;
         while j > 0 && hits[j - 1].entry < item.entry {
             hits[j] = hits[j - 1];
@@ -1433,6 +1456,10 @@ fn enter<const ORDERED: bool, const W: usize>(
         }
         hits[j] = item;
         h += 1;
+    };
+    insert(third);
+    while mask != 0 {
+        insert(take(&mut mask));
     }
     for item in &hits[..h - 1] {
         fetch_child(nodes, item.child, item.count, prefetch_leaf);
