@@ -1610,7 +1610,6 @@ impl<P: Primitives> GroupLeaf for ClosestInGroup<'_, P> {
     }
 }
 
-/// The [`BareHit`] of hit `h` of the primitive given index `index`.
 /// What a query's walk found, as two integers, which a function returns
 /// in two registers: the best hit (its primitive in storage order, and
 /// the hit), no hit, or a walk left undone (an AVX2 walk whose inline
@@ -1682,6 +1681,7 @@ impl PackedHit {
     }
 }
 
+/// The [`BareHit`] of hit `h` of the primitive given index `index`.
 fn bare_at(index: u32, h: PrimHit) -> BareHit {
     BareHit {
         t: h.t,
