@@ -276,13 +276,68 @@ impl<P: Primitives> Scene<P> {
             .map(|(prim, h)| self.bare(prim, h))
     }
 
+    /// [`Self::intersect_bare`] of the ray in row `r`, laid out `[ox, oy,
+    /// oz, tmin, dx, dy, dz, tmax]` (BENCH.md's rays, as `raymesh rays`
+    /// writes them and numpy arrays hold them): the hit of
+    /// [`Ray::from_row`], bit for bit, with the ray made inside the
+    /// query.
+    ///
+    /// For callers that hold rays as rows rather than as [`Ray`]s (as
+    /// Embree takes its `RTCRay`). Over an 8-wide BVH on a CPU with AVX2
+    /// the ray's constants (reciprocal, shear, axes) are then computed in
+    /// the walk's SIMD region, compiled for AVX2 or AVX-512, from the row
+    /// where it lies, instead of in the caller's code (compiled for
+    /// baseline x86-64) and handed over through memory, where a load
+    /// wider than the stores that wrote it waits for them to reach the
+    /// cache. `raymesh-ab --rows` (rows made into `Ray`s inline in the
+    /// timed loop, against this), pig: primary rays 1.03 (closest) and
+    /// 1.07 (occlusion), random 1.01 and 1.06 (README, stop 74).
+    pub fn intersect_bare_row(&self, r: &[f32; 8]) -> Option<BareHit> {
+        self.closest_made(|| Ray::from_row(r), &mut NoStats)
+            .hit()
+            .map(|(prim, h)| self.bare(prim, h))
+    }
+
+    /// [`Self::any_hit_bare`] of the ray in row `r`, made inside the
+    /// query, as [`Self::intersect_bare_row`]: the same hit.
+    pub fn any_hit_bare_row(&self, r: &[f32; 8]) -> Option<BareHit> {
+        self.first_hit_row(r)
+            .hit()
+            .map(|(prim, h)| self.bare(prim, h))
+    }
+
+    /// [`Self::occluded`] of the ray in row `r`, made inside the query, as
+    /// [`Self::intersect_bare_row`].
+    pub fn occluded_row(&self, r: &[f32; 8]) -> bool {
+        self.first_hit_row(r).hit().is_some()
+    }
+
+    /// [`Self::first_hit`] of the ray in row `r`: one instance of the walk
+    /// for [`Self::any_hit_bare_row`] and [`Self::occluded_row`].
+    #[inline(always)]
+    fn first_hit_row(&self, r: &[f32; 8]) -> PackedHit {
+        self.first_hit_made(|| Ray::from_row(r), &mut NoStats)
+    }
+
     /// The closest hit's primitive (in storage order) and hit, packed
     /// ([`PackedHit`]).
     #[inline(always)]
     fn closest<C: RayCounter>(&self, ray: &Ray, counter: &mut C) -> PackedHit {
+        self.closest_made(|| *ray, counter)
+    }
+
+    /// [`Self::closest`] of the ray `make` makes: in the 8-wide walk's
+    /// SIMD region where there is one (see [`Self::intersect_bare_row`];
+    /// a copy of a ray already made costs nothing there, the copy never
+    /// made), else before the walk. Each call site's `make` is a type of
+    /// its own, so each instantiates the walk once, as the walk's kernel
+    /// needs to be inlined (see [`Self::closest_avx2`]).
+    #[inline(always)]
+    fn closest_made<C: RayCounter>(&self, make: impl Fn() -> Ray, counter: &mut C) -> PackedHit {
         if let (Some(WideRef::W8(bvh)), Some(avx)) = (self.wide_blocks(), Avx2::detect()) {
-            return self.closest_avx2(bvh, avx, ray, counter);
+            return self.closest_avx2(bvh, avx, make, counter);
         }
+        let ray = &make();
         if let (Accel::Grid(_) | Accel::KdTree(_), Some(avx)) = (&self.accel, Avx2::detect()) {
             return self.lists_avx2::<false, C>(avx, ray, counter);
         }
@@ -365,7 +420,9 @@ impl<P: Primitives> Scene<P> {
     /// same lanes, with 32 vector registers, which keep more of the ray's
     /// constants out of memory (`raymesh-ab --accel bvh8` on bunny00 and
     /// the dragon, each build as the other's baseline: closest hits 1–8%
-    /// faster, any-hit queries 2–9%).
+    /// faster, any-hit queries 2–9%). The ray is `make`'s, made inside
+    /// the region (see [`Self::closest_made`]); an invalid one misses
+    /// there.
     ///
     /// The kernel inlines only while everything between `with_avx2` and
     /// it is `#[inline(always)]` or a closure called from one place: the
@@ -378,13 +435,14 @@ impl<P: Primitives> Scene<P> {
         &self,
         bvh: &Bvh8,
         avx: Avx2,
-        ray: &Ray,
+        make: impl Fn() -> Ray,
         counter: &mut C,
     ) -> PackedHit {
-        if !ray.is_valid() {
-            return PackedHit::NONE;
-        }
         let result = avx_run!(avx, || {
+            let ray = &make();
+            if !ray.is_valid() {
+                return PackedHit::NONE;
+            }
             let mut best = None;
             let mut tmax = ray.tmax();
             let pre = self.prims.block_ray(ray);
@@ -405,7 +463,7 @@ impl<P: Primitives> Scene<P> {
         // A ray the inline stack could not hold walks again, from the start
         // (with counts on, the first try's visits count too).
         if result.is_undone() {
-            return self.closest_general(ray, counter);
+            return self.closest_general(&make(), counter);
         }
         result
     }
@@ -471,13 +529,14 @@ impl<P: Primitives> Scene<P> {
         &self,
         bvh: &Bvh8,
         avx: Avx2,
-        ray: &Ray,
+        make: impl Fn() -> Ray,
         counter: &mut C,
     ) -> PackedHit {
-        if !ray.is_valid() {
-            return PackedHit::NONE;
-        }
         let result = avx_run!(avx, || {
+            let ray = &make();
+            if !ray.is_valid() {
+                return PackedHit::NONE;
+            }
             let mut found = None;
             let pre = self.prims.block_ray(ray);
             let done = bvh.traverse_blocks_avx2::<false, C>(
@@ -499,7 +558,7 @@ impl<P: Primitives> Scene<P> {
             PackedHit::new(done, found)
         });
         if result.is_undone() {
-            return self.any_general(ray, counter);
+            return self.any_general(&make(), counter);
         }
         result
     }
@@ -684,13 +743,20 @@ impl<P: Primitives> Scene<P> {
     /// packed ([`PackedHit`]).
     #[inline(always)]
     fn first_hit<C: RayCounter>(&self, ray: &Ray, counter: &mut C) -> PackedHit {
+        self.first_hit_made(|| *ray, counter)
+    }
+
+    /// [`Self::first_hit`] of the ray `make` makes, as
+    /// [`Self::closest_made`].
+    #[inline(always)]
+    fn first_hit_made<C: RayCounter>(&self, make: impl Fn() -> Ray, counter: &mut C) -> PackedHit {
         match (self.wide_blocks(), Avx2::detect()) {
-            (Some(WideRef::W8(bvh)), Some(avx)) => self.any_avx2(bvh, avx, ray, counter),
-            (Some(WideRef::W2(bvh)), Some(avx)) => self.any_binary_avx2(bvh, avx, ray, counter),
+            (Some(WideRef::W8(bvh)), Some(avx)) => self.any_avx2(bvh, avx, make, counter),
+            (Some(WideRef::W2(bvh)), Some(avx)) => self.any_binary_avx2(bvh, avx, &make(), counter),
             (None, Some(avx)) if matches!(self.accel, Accel::Grid(_) | Accel::KdTree(_)) => {
-                self.lists_avx2::<true, C>(avx, ray, counter)
+                self.lists_avx2::<true, C>(avx, &make(), counter)
             }
-            _ => self.any_general(ray, counter),
+            _ => self.any_general(&make(), counter),
         }
     }
 

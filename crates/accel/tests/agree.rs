@@ -114,9 +114,37 @@ fn check_all<P: Primitives + Clone>(prims: &P, rays: &[Ray]) -> usize {
                 bare_of(s.any_hit(r)),
                 "{kind}{how}: bare any hit differs for ray {i}: {r:?}"
             );
+            // The queries of a row make the same ray inside and find the
+            // same hits (`check_rows` covers invalid rows).
+            if let Some(row) = row_of(r) {
+                assert_eq!(
+                    bare_bits(s.intersect_bare_row(&row)),
+                    bare_of(s.intersect(r)),
+                    "{kind}{how}: closest hit of the row differs for ray {i}: {r:?}"
+                );
+                assert_eq!(
+                    bare_bits(s.any_hit_bare_row(&row)),
+                    bare_of(s.any_hit(r)),
+                    "{kind}{how}: any hit of the row differs for ray {i}: {r:?}"
+                );
+                assert_eq!(
+                    s.occluded_row(&row),
+                    want_any[i],
+                    "{kind}{how}: occlusion of the row differs for ray {i}: {r:?}"
+                );
+            }
         }
     }
     want.iter().filter(|w| w.is_some()).count()
+}
+
+/// The row (`[ox, oy, oz, tmin, dx, dy, dz, tmax]`) that makes ray `r`,
+/// where `r` is valid (an invalid ray keeps an empty interval, not the one
+/// it was given).
+fn row_of(r: &Ray) -> Option<[f32; 8]> {
+    let (o, d) = (r.origin(), r.dir());
+    r.is_valid()
+        .then_some([o.x, o.y, o.z, r.tmin(), d.x, d.y, d.z, r.tmax()])
 }
 
 /// [`check_all`] on an indexed mesh and on its corner copy ([`Triangles`],
@@ -585,5 +613,65 @@ fn rays_past_the_inline_stack_get_brute_forces_hits() {
         );
         assert_eq!(bvh8.any_hit_bare(r).is_some(), want.is_some(), "ray {i}");
         assert_eq!(bare_of(bvh8.intersect(r)), bare_bits(want), "ray {i}");
+        // A row's ray, made inside the walk's region, walks again too.
+        let row = row_of(r).expect("a valid ray");
+        assert_eq!(
+            bare_bits(bvh8.intersect_bare_row(&row)),
+            bare_bits(want),
+            "ray {i}"
+        );
+        assert_eq!(
+            bvh8.any_hit_bare_row(&row).is_some(),
+            want.is_some(),
+            "ray {i}"
+        );
+        assert_eq!(bvh8.occluded_row(&row), want.is_some(), "ray {i}");
+    }
+}
+
+/// Rows that make invalid rays (NaN or infinite parts, a zero direction,
+/// an empty or NaN interval) miss in every structure, as the rays made
+/// from them do; a row whose ray is valid hits, so the scenes can.
+#[test]
+fn invalid_rows_never_hit() {
+    let (nan, inf) = (f32::NAN, f32::INFINITY);
+    let rows: [[f32; 8]; 9] = [
+        [nan, 0.2, -1.0, 0.0, 0.0, 0.0, 1.0, inf],
+        [0.2, 0.2, -1.0, 0.0, nan, 0.0, 1.0, inf],
+        [inf, 0.2, -1.0, 0.0, 0.0, 0.0, 1.0, inf],
+        [0.2, 0.2, -1.0, 0.0, 0.0, -inf, 1.0, inf],
+        [0.2, 0.2, -1.0, 0.0, 0.0, 0.0, 0.0, inf],
+        [0.2, 0.2, -1.0, 5.0, 0.0, 0.0, 1.0, 1.0],
+        [0.2, 0.2, -1.0, 0.0, 0.0, 0.0, 1.0, nan],
+        [0.2, 0.2, -1.0, nan, 0.0, 0.0, 1.0, inf],
+        [0.2, 0.2, -1.0, 0.0, 0.0, 0.0, 1.0, inf],
+    ];
+    let tri = [Vec3::ZERO, Vec3::X, Vec3::Y];
+    let mesh = tri_mesh(&[tri, [Vec3::Z, Vec3::X + Vec3::Z, Vec3::Y + Vec3::Z]]);
+    for (kind, config, how) in builds() {
+        let s = Scene::from_mesh_with(&mesh, kind, &config);
+        for (i, row) in rows.iter().enumerate() {
+            let valid = i == rows.len() - 1;
+            let ray = Ray::new(
+                Vec3::new(row[0], row[1], row[2]),
+                Vec3::new(row[4], row[5], row[6]),
+                row[3],
+                row[7],
+            );
+            assert_eq!(ray.is_valid(), valid, "row {i}");
+            let hit = s.intersect_bare_row(row);
+            assert_eq!(hit.is_some(), valid, "{kind}{how}: row {i}");
+            assert_eq!(
+                bare_bits(hit),
+                bare_of(s.intersect(&ray)),
+                "{kind}{how}: row {i}"
+            );
+            assert_eq!(
+                s.any_hit_bare_row(row).is_some(),
+                valid,
+                "{kind}{how}: row {i}"
+            );
+            assert_eq!(s.occluded_row(row), valid, "{kind}{how}: row {i}");
+        }
     }
 }

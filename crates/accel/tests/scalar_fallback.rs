@@ -3,12 +3,13 @@
 //! switch, so this file is its own test process), every BVH over
 //! [`Triangles`] (and the k-d tree and grid, whose leaves gather
 //! triangles into blocks) still returns brute force's bits, and the same
-//! as with the kernels on, one ray at a time and as a stream.
+//! as with the kernels on, one ray at a time (as a `Ray` and as a row)
+//! and as a stream.
 
 use raymesh_accel::*;
 
 mod common;
-use common::{bare_of as key, kernel_cases};
+use common::{bare_bits, bare_of as key, kernel_cases};
 
 #[test]
 fn fallbacks_agree_with_brute_force_and_with_the_kernels() {
@@ -56,6 +57,26 @@ fn fallbacks_agree_with_brute_force_and_with_the_kernels() {
                         want[i].is_some(),
                         "{name} {kind} simd={on}: any hit, ray {i}"
                     );
+                    // The queries of rows, whose rays are made inside.
+                    if r.is_valid() {
+                        let (o, d) = (r.origin(), r.dir());
+                        let row = [o.x, o.y, o.z, r.tmin(), d.x, d.y, d.z, r.tmax()];
+                        assert_eq!(
+                            bare_bits(s.intersect_bare_row(&row)),
+                            want[i],
+                            "{name} {kind} simd={on}: row {i}"
+                        );
+                        assert_eq!(
+                            bare_bits(s.any_hit_bare_row(&row)),
+                            key(s.any_hit(r)),
+                            "{name} {kind} simd={on}: any hit of row {i}"
+                        );
+                        assert_eq!(
+                            s.occluded_row(&row),
+                            want[i].is_some(),
+                            "{name} {kind} simd={on}: occlusion of row {i}"
+                        );
+                    }
                 }
             }
             set_simd_enabled(true);

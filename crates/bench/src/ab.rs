@@ -79,7 +79,11 @@ struct Args {
     /// the timed pass, as `raymesh-peers` makes them (and Embree makes
     /// its own), so that `Ray::new` is timed with the queries; without it
     /// the rays are made once, before any chunk (a baseline from before
-    /// `--rows` refuses it).
+    /// `--rows` refuses it). One ray at a time, each row goes in as it
+    /// lies (`Scene::intersect_bare_row`, `any_hit_bare_row`,
+    /// `occluded_row`), the ray made inside the query, as `raymesh-peers`
+    /// hands them over since stop 74; packets and streams make their
+    /// `Ray`s from the rows first.
     #[arg(long)]
     rows: bool,
     /// Rays a chunk: each build traces a chunk, then the other.
@@ -425,8 +429,14 @@ fn trace_into(
                 }
             }
             Input::Rows(rows) => {
+                // Each row handed over as it lies, as `raymesh-peers`
+                // hands them (the ray made inside the query).
                 for (r, h) in rows.iter().zip(hits) {
-                    *h = one(&row_ray(r));
+                    *h = match query {
+                        Query::Closest => scene.intersect_bare_row(r),
+                        Query::AnyHit => scene.any_hit_bare_row(r),
+                        Query::Occluded => occluded_hit(scene.occluded_row(r)),
+                    };
                 }
             }
         }

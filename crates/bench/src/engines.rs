@@ -255,10 +255,14 @@ impl Engine for Raymesh {
                 }
             });
         }
+        // One ray at a time, each row handed over as it lies, as Embree's
+        // `RTCRay` is: the ray is made inside the query
+        // (`Scene::occluded_row`, `intersect_bare_row`), where the walk's
+        // SIMD region computes its constants.
         if any {
-            run.run(rays, |r| self.scene.occluded(&ray(r)).then_some((0.0, 0)))
+            run.run(rays, |r| self.scene.occluded_row(r).then_some((0.0, 0)))
         } else {
-            run.run(rays, |r| hit(self.scene.intersect_bare(&ray(r))))
+            run.run(rays, |r| hit(self.scene.intersect_bare_row(r)))
         }
     }
 }

@@ -161,12 +161,7 @@ pub fn unpack_ray(r: [f32; 8]) -> Ray {
 /// copying them).
 #[inline]
 pub fn row_ray(r: &[f32; 8]) -> Ray {
-    Ray::new(
-        Vec3::new(r[0], r[1], r[2]),
-        Vec3::new(r[4], r[5], r[6]),
-        r[3],
-        r[7],
-    )
+    Ray::from_row(r)
 }
 
 /// Reads a `--frame` box: six numbers `minx,miny,minz,maxx,maxy,maxz`,

@@ -101,6 +101,20 @@ impl Ray {
         }
     }
 
+    /// Makes the ray of row `r`, laid out `[ox, oy, oz, tmin, dx, dy, dz,
+    /// tmax]` (BENCH.md's rays, as numpy arrays and Embree's `RTCRay`
+    /// hold them): `Ray::new(origin, dir, tmin, tmax)`.
+    #[inline]
+    #[must_use]
+    pub fn from_row(r: &[f32; 8]) -> Self {
+        Self::new(
+            Vec3::new(r[0], r[1], r[2]),
+            Vec3::new(r[4], r[5], r[6]),
+            r[3],
+            r[7],
+        )
+    }
+
     /// Makes a ray over `[0, +inf)`.
     #[inline]
     #[must_use]
@@ -457,6 +471,9 @@ mod tests {
         ) {
             let (o, d) = (Vec3::from_array(o), Vec3::from_array(d));
             prop_assert_eq!(bits(&Ray::new(o, d, tmin, tmax)), bits(&reference(o, d, tmin, tmax)));
+            // A row's ray is the same, each part from its column.
+            let row = [o.x, o.y, o.z, tmin, d.x, d.y, d.z, tmax];
+            prop_assert_eq!(bits(&Ray::from_row(&row)), bits(&Ray::new(o, d, tmin, tmax)));
         }
     }
 
