@@ -138,6 +138,11 @@ pub trait Engine: Send + Sync {
 /// Which engines to run, by name.
 pub const RUST_PEERS: [&str; 3] = ["obvhs", "bvh", "parry3d"];
 
+/// Engines run only when named (`--peers raymesh-ray`), not by `all`:
+/// raymesh itself through another entry point, for a side-by-side
+/// measure of the entry points in one run.
+pub const OPT_IN_PEERS: [&str; 1] = ["raymesh-ray"];
+
 /// Builds the named engine over the mesh on the current thread pool
 /// (callers `install` the pool whose thread count they measure).
 pub fn build(
@@ -149,10 +154,46 @@ pub fn build(
 ) -> Box<dyn Engine> {
     match name {
         "raymesh" => Box::new(Raymesh::new(accel, config, positions, triangles)),
+        "raymesh-ray" => Box::new(RaymeshRay(Raymesh::new(
+            accel, config, positions, triangles,
+        ))),
         "obvhs" => Box::new(Obvhs::new(positions, triangles)),
         "bvh" => Box::new(BvhCrate::new(positions, triangles)),
         "parry3d" => Box::new(Parry::new(positions, triangles)),
         other => unreachable!("unknown engine {other}"),
+    }
+}
+
+/// raymesh with each ray made by the caller: `Ray::new` from the row
+/// (`raymesh::workload::unpack_ray`, a call), then the `&Ray` queries
+/// (`Scene::intersect_bare`, `occluded`), one ray at a time, as
+/// `raymesh-peers` called raymesh before stop 74. Beside `raymesh` (the
+/// row queries, the ray made inside the walk's SIMD region) it measures
+/// what the entry point costs, in the same run.
+pub struct RaymeshRay(Raymesh);
+
+impl Engine for RaymeshRay {
+    fn name(&self) -> &'static str {
+        "raymesh-ray"
+    }
+    fn build_ms(&self) -> f64 {
+        self.0.build_ms()
+    }
+    fn bytes(&self) -> Option<usize> {
+        self.0.bytes()
+    }
+    fn tree_cost(&self) -> Option<TreeCost> {
+        self.0.tree_cost()
+    }
+    fn trace(&self, rays: &[[f32; 8]], any: bool, run: &Runner) -> (f64, Vec<Answer>) {
+        let ray = |r: &[f32; 8]| raymesh::workload::unpack_ray(*r);
+        if any {
+            run.run(rays, |r| self.0.scene.occluded(&ray(r)).then_some((0.0, 0)))
+        } else {
+            run.run(rays, |r| {
+                self.0.scene.intersect_bare(&ray(r)).map(|h| (h.t, h.prim))
+            })
+        }
     }
 }
 
@@ -675,6 +716,19 @@ mod tests {
                         let hits = want.iter().filter(|a| a.is_some()).count();
                         if w == Workload::Random {
                             assert!(hits > rays.len() / 10, "{file}: too few hits to test");
+                        }
+                        // raymesh through its other entry point (each `Ray`
+                        // made by the caller): the same answers, exactly.
+                        for name in OPT_IN_PEERS {
+                            let peer = build(
+                                name,
+                                AccelKind::FASTEST_BVH,
+                                &BuildConfig::default(),
+                                &mesh.positions,
+                                &tris,
+                            );
+                            let (_, got) = peer.trace(&rays, any, &run);
+                            assert_eq!(got, want, "{name} on {file}, {w:?}, any-hit {any}");
                         }
                         for name in RUST_PEERS {
                             let peer = pool.install(|| {

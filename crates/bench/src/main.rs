@@ -17,7 +17,7 @@ mod thread_list;
 
 use anyhow::{bail, ensure, Context, Result};
 use clap::Parser;
-use engines::{Answer, Engine, Runner, RUST_PEERS};
+use engines::{Answer, Engine, Runner, OPT_IN_PEERS, RUST_PEERS};
 use raymesh::npy;
 use raymesh::workload::{make_rays, Workload};
 use raymesh_accel::{AccelKind, BuildConfig, Scene, TriangleMesh};
@@ -57,7 +57,9 @@ struct Args {
     #[arg(long, default_value = "bvh")]
     accel: AccelKind,
     /// Peers to run, comma-separated (embree, obvhs, bvh, parry3d), `all`
-    /// (every one built in) or `none`.
+    /// (every one built in) or `none`. `raymesh-ray`, run only when named,
+    /// is raymesh with each ray made by the caller (`Ray::new`, then
+    /// `Scene::intersect_bare(&Ray)`), beside raymesh's row queries.
     #[arg(long, default_value = "all")]
     peers: String,
     /// Print markdown tables as well.
@@ -309,19 +311,27 @@ fn engine_names(peers: &str) -> Result<Vec<&'static str>> {
     let mut chosen: Vec<&'static str> = match peers.trim() {
         "all" => built.clone(),
         "none" => Vec::new(),
-        list => {
-            list.split(',')
-                .map(|p| {
-                    let p = p.trim();
-                    if p == "embree" && !cfg!(feature = "embree") {
-                        bail!("embree is not built in: build with --features embree (README)");
-                    }
-                    built.iter().find(|b| **b == p).copied().with_context(|| {
-                        format!("unknown peer '{p}'; expected {}", built.join(", "))
+        list => list
+            .split(',')
+            .map(|p| {
+                let p = p.trim();
+                if p == "embree" && !cfg!(feature = "embree") {
+                    bail!("embree is not built in: build with --features embree (README)");
+                }
+                built
+                    .iter()
+                    .chain(&OPT_IN_PEERS)
+                    .find(|b| **b == p)
+                    .copied()
+                    .with_context(|| {
+                        format!(
+                            "unknown peer '{p}'; expected {} or {}",
+                            built.join(", "),
+                            OPT_IN_PEERS.join(", ")
+                        )
                     })
-                })
-                .collect::<Result<_>>()?
-        }
+            })
+            .collect::<Result<_>>()?,
     };
     chosen.dedup();
     let at = usize::from(chosen.first() == Some(&"embree"));
