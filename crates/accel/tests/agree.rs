@@ -8,7 +8,7 @@ use raymesh_accel::*;
 use raymesh_geometry::{Mat4, Sphere};
 
 mod common;
-use common::{bare_bits, bare_of, hit_bits, load, tri_mesh};
+use common::{bare_bits, bare_of, hit_bits, load, row_answers, row_of, tri_mesh};
 
 const KINDS: [AccelKind; 8] = [
     AccelKind::Aabb,
@@ -115,36 +115,17 @@ fn check_all<P: Primitives + Clone>(prims: &P, rays: &[Ray]) -> usize {
                 "{kind}{how}: bare any hit differs for ray {i}: {r:?}"
             );
             // The queries of a row make the same ray inside and find the
-            // same hits (`check_rows` covers invalid rows).
+            // same hits (`invalid_rows_never_hit` covers invalid rows).
             if let Some(row) = row_of(r) {
                 assert_eq!(
-                    bare_bits(s.intersect_bare_row(&row)),
-                    bare_of(s.intersect(r)),
-                    "{kind}{how}: closest hit of the row differs for ray {i}: {r:?}"
-                );
-                assert_eq!(
-                    bare_bits(s.any_hit_bare_row(&row)),
-                    bare_of(s.any_hit(r)),
-                    "{kind}{how}: any hit of the row differs for ray {i}: {r:?}"
-                );
-                assert_eq!(
-                    s.occluded_row(&row),
-                    want_any[i],
-                    "{kind}{how}: occlusion of the row differs for ray {i}: {r:?}"
+                    row_answers(&s, &row),
+                    (bare_of(s.intersect(r)), bare_of(s.any_hit(r)), want_any[i]),
+                    "{kind}{how}: the row queries differ for ray {i}: {r:?}"
                 );
             }
         }
     }
     want.iter().filter(|w| w.is_some()).count()
-}
-
-/// The row (`[ox, oy, oz, tmin, dx, dy, dz, tmax]`) that makes ray `r`,
-/// where `r` is valid (an invalid ray keeps an empty interval, not the one
-/// it was given).
-fn row_of(r: &Ray) -> Option<[f32; 8]> {
-    let (o, d) = (r.origin(), r.dir());
-    r.is_valid()
-        .then_some([o.x, o.y, o.z, r.tmin(), d.x, d.y, d.z, r.tmax()])
 }
 
 /// [`check_all`] on an indexed mesh and on its corner copy ([`Triangles`],
@@ -614,18 +595,13 @@ fn rays_past_the_inline_stack_get_brute_forces_hits() {
         assert_eq!(bvh8.any_hit_bare(r).is_some(), want.is_some(), "ray {i}");
         assert_eq!(bare_of(bvh8.intersect(r)), bare_bits(want), "ray {i}");
         // A row's ray, made inside the walk's region, walks again too.
-        let row = row_of(r).expect("a valid ray");
+        let (closest, any, occluded) = row_answers(&bvh8, &row_of(r).expect("a valid ray"));
+        assert_eq!(closest, bare_bits(want), "ray {i}");
         assert_eq!(
-            bare_bits(bvh8.intersect_bare_row(&row)),
-            bare_bits(want),
+            (any.is_some(), occluded),
+            (want.is_some(), want.is_some()),
             "ray {i}"
         );
-        assert_eq!(
-            bvh8.any_hit_bare_row(&row).is_some(),
-            want.is_some(),
-            "ray {i}"
-        );
-        assert_eq!(bvh8.occluded_row(&row), want.is_some(), "ray {i}");
     }
 }
 

@@ -9,7 +9,7 @@
 use raymesh_accel::*;
 
 mod common;
-use common::{bare_bits, bare_of as key, kernel_cases};
+use common::{bare_of as key, kernel_cases, row_answers, row_of};
 
 #[test]
 fn fallbacks_agree_with_brute_force_and_with_the_kernels() {
@@ -58,23 +58,11 @@ fn fallbacks_agree_with_brute_force_and_with_the_kernels() {
                         "{name} {kind} simd={on}: any hit, ray {i}"
                     );
                     // The queries of rows, whose rays are made inside.
-                    if r.is_valid() {
-                        let (o, d) = (r.origin(), r.dir());
-                        let row = [o.x, o.y, o.z, r.tmin(), d.x, d.y, d.z, r.tmax()];
+                    if let Some(row) = row_of(r) {
                         assert_eq!(
-                            bare_bits(s.intersect_bare_row(&row)),
-                            want[i],
+                            row_answers(&s, &row),
+                            (want[i], key(s.any_hit(r)), want[i].is_some()),
                             "{name} {kind} simd={on}: row {i}"
-                        );
-                        assert_eq!(
-                            bare_bits(s.any_hit_bare_row(&row)),
-                            key(s.any_hit(r)),
-                            "{name} {kind} simd={on}: any hit of row {i}"
-                        );
-                        assert_eq!(
-                            s.occluded_row(&row),
-                            want[i].is_some(),
-                            "{name} {kind} simd={on}: occlusion of row {i}"
                         );
                     }
                 }

@@ -54,6 +54,35 @@ pub fn bare_of(h: Option<Hit>) -> Option<(u32, u32, u32, u32)> {
     bare_bits(h.map(BareHit::from))
 }
 
+/// The row (`[ox, oy, oz, tmin, dx, dy, dz, tmax]`) that makes ray `r`,
+/// where `r` is valid (an invalid ray keeps an empty interval, not the one
+/// it was given).
+#[allow(dead_code)]
+pub fn row_of(r: &Ray) -> Option<[f32; 8]> {
+    let (o, d) = (r.origin(), r.dir());
+    r.is_valid()
+        .then_some([o.x, o.y, o.z, r.tmin(), d.x, d.y, d.z, r.tmax()])
+}
+
+/// What the row queries answer for `row`, as bits: the closest hit, the
+/// any hit and the occlusion (`Scene::intersect_bare_row`,
+/// `any_hit_bare_row`, `occluded_row`).
+#[allow(dead_code, clippy::type_complexity)]
+pub fn row_answers<P: Primitives>(
+    s: &Scene<P>,
+    row: &[f32; 8],
+) -> (
+    Option<(u32, u32, u32, u32)>,
+    Option<(u32, u32, u32, u32)>,
+    bool,
+) {
+    (
+        bare_bits(s.intersect_bare_row(row)),
+        bare_bits(s.any_hit_bare_row(row)),
+        s.occluded_row(row),
+    )
+}
+
 /// A point of the cube `[-2, 2]³`.
 #[allow(dead_code)]
 pub fn point() -> impl Strategy<Value = Vec3> {
