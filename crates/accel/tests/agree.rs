@@ -628,12 +628,7 @@ fn invalid_rows_never_hit() {
         let s = Scene::from_mesh_with(&mesh, kind, &config);
         for (i, row) in rows.iter().enumerate() {
             let valid = i == rows.len() - 1;
-            let ray = Ray::new(
-                Vec3::new(row[0], row[1], row[2]),
-                Vec3::new(row[4], row[5], row[6]),
-                row[3],
-                row[7],
-            );
+            let ray = Ray::from_row(row);
             assert_eq!(ray.is_valid(), valid, "row {i}");
             let hit = s.intersect_bare_row(row);
             assert_eq!(hit.is_some(), valid, "{kind}{how}: row {i}");
