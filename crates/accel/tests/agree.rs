@@ -115,8 +115,12 @@ fn check_all<P: Primitives + Clone>(prims: &P, rays: &[Ray]) -> usize {
                 "{kind}{how}: bare any hit differs for ray {i}: {r:?}"
             );
             // The queries of a row make the same ray inside and find the
-            // same hits (`invalid_rows_never_hit` covers invalid rows).
-            if let Some(row) = row_of(r) {
+            // same hits (`invalid_rows_never_hit` covers invalid rows, on
+            // every kind). Checked on `bvh8`, the one kind whose walk makes
+            // the ray inside its SIMD region; the others make it first and
+            // walk as for a `Ray` (the checks cost the agreement tests
+            // half their time again under qemu in CI).
+            if let Some(row) = row_of(r).filter(|_| kind == AccelKind::Bvh8) {
                 assert_eq!(
                     row_answers(&s, &row),
                     (bare_of(s.intersect(r)), bare_of(s.any_hit(r)), want_any[i]),
