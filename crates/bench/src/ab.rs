@@ -265,7 +265,7 @@ fn serve(args: &Args) -> Result<()> {
     let rays_path = args.rays.as_deref().context("--serve needs --rays")?;
     let rays = npy::read_rays(rays_path)?;
     let rows: Vec<[f32; 8]> = if args.rows {
-        rays.iter().map(ray_row).collect()
+        rays.iter().map(Ray::row).collect()
     } else {
         Vec::new()
     };
@@ -353,12 +353,6 @@ impl<'a> Input<'a> {
             Self::Rows(r) => Cow::Owned(r[range].iter().map(row_ray).collect()),
         }
     }
-}
-
-/// A ray's row (BENCH.md's layout), from which `row_ray` makes it again.
-fn ray_row(r: &Ray) -> [f32; 8] {
-    let (o, d) = (r.origin(), r.dir());
-    [o.x, o.y, o.z, r.tmin(), d.x, d.y, d.z, r.tmax()]
 }
 
 /// What an occlusion query's answer goes into the checksum as.
@@ -865,7 +859,7 @@ mod tests {
     #[test]
     fn rows_and_occlusion_answer_as_the_rays_do() {
         let (scene, rays) = elephant_and_rays();
-        let rows: Vec<[f32; 8]> = rays.iter().map(ray_row).collect();
+        let rows: Vec<[f32; 8]> = rays.iter().map(Ray::row).collect();
         let run = |input: Input, query, packets, stream| {
             let mut hits = vec![None; input.len()];
             trace_into(&scene, input, query, packets, stream, &mut hits);

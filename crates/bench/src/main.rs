@@ -496,13 +496,7 @@ fn main() -> Result<()> {
                 let bytes =
                     std::fs::read(file).with_context(|| format!("reading {}", file.display()))?;
                 let rays = npy::parse_rays(&bytes).with_context(|| file.display().to_string())?;
-                let raw = rays
-                    .iter()
-                    .map(|r| {
-                        let (o, d) = (r.origin(), r.dir());
-                        [o.x, o.y, o.z, r.tmin(), d.x, d.y, d.z, r.tmax()]
-                    })
-                    .collect();
+                let raw = rays.iter().map(raymesh_geometry::Ray::row).collect();
                 vec![(short(file), raw)]
             }
             None => {

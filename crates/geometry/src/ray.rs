@@ -115,6 +115,16 @@ impl Ray {
         )
     }
 
+    /// The row of this ray, `[ox, oy, oz, tmin, dx, dy, dz, tmax]`: the
+    /// inverse of [`Self::from_row`] for a valid ray (an invalid one holds
+    /// an empty interval, not the one it was made with).
+    #[inline]
+    #[must_use]
+    pub fn row(&self) -> [f32; 8] {
+        let (o, d) = (self.origin, self.dir);
+        [o.x, o.y, o.z, self.tmin, d.x, d.y, d.z, self.tmax]
+    }
+
     /// Makes a ray over `[0, +inf)`.
     #[inline]
     #[must_use]
@@ -473,7 +483,11 @@ mod tests {
             prop_assert_eq!(bits(&Ray::new(o, d, tmin, tmax)), bits(&reference(o, d, tmin, tmax)));
             // A row's ray is the same, each part from its column.
             let row = [o.x, o.y, o.z, tmin, d.x, d.y, d.z, tmax];
-            prop_assert_eq!(bits(&Ray::from_row(&row)), bits(&Ray::new(o, d, tmin, tmax)));
+            let ray = Ray::new(o, d, tmin, tmax);
+            prop_assert_eq!(bits(&Ray::from_row(&row)), bits(&ray));
+            if ray.is_valid() {
+                prop_assert_eq!(bits(&Ray::from_row(&ray.row())), bits(&ray));
+            }
         }
     }
 

@@ -59,9 +59,7 @@ pub fn bare_of(h: Option<Hit>) -> Option<(u32, u32, u32, u32)> {
 /// it was given).
 #[allow(dead_code)]
 pub fn row_of(r: &Ray) -> Option<[f32; 8]> {
-    let (o, d) = (r.origin(), r.dir());
-    r.is_valid()
-        .then_some([o.x, o.y, o.z, r.tmin(), d.x, d.y, d.z, r.tmax()])
+    r.is_valid().then(|| r.row())
 }
 
 /// What the row queries answer for `row`, as bits: the closest hit, the
