@@ -260,7 +260,7 @@ impl Engine for Raymesh {
             return run.run8(
                 rays,
                 |p| {
-                    let o = self.scene.occluded8_soa(&rows8(p));
+                    let o = self.scene.occluded8_soa(&Rays8::from_rows(p));
                     o.map(|o| o.then_some((0.0, 0)))
                 },
                 |r| self.scene.occluded(&ray(r)).then_some((0.0, 0)),
@@ -269,7 +269,11 @@ impl Engine for Raymesh {
         if run.packets {
             return run.run8(
                 rays,
-                |p| self.scene.intersect8_soa_bare(&rows8(p)).map(hit),
+                |p| {
+                    self.scene
+                        .intersect8_soa_bare(&Rays8::from_rows(p))
+                        .map(hit)
+                },
                 |r| hit(self.scene.intersect_bare(&ray(r))),
             );
         }
@@ -448,17 +452,6 @@ fn moller_trumbore(o: Vec3, d: Vec3, p: &[nalgebra::Point3<f32>; 3], tmin: f32, 
         t
     } else {
         f32::INFINITY
-    }
-}
-
-/// Eight rays of BENCH.md's layout (origin, `tmin`, direction, `tmax`)
-/// as rows.
-fn rows8(p: &[[f32; 8]; 8]) -> Rays8 {
-    Rays8 {
-        origin: std::array::from_fn(|a| std::array::from_fn(|i| p[i][a])),
-        dir: std::array::from_fn(|a| std::array::from_fn(|i| p[i][4 + a])),
-        tmin: std::array::from_fn(|i| p[i][3]),
-        tmax: std::array::from_fn(|i| p[i][7]),
     }
 }
 

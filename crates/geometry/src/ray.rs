@@ -275,6 +275,39 @@ impl Rays8 {
         }
     }
 
+    /// Eight rays given as rows `[ox, oy, oz, tmin, dx, dy, dz, tmax]`
+    /// (BENCH.md's layout, [`Ray::from_row`]'s), one a lane: lane `i`'s
+    /// ray is `Ray::from_row(&rows[i])`, whatever the rows hold (invalid
+    /// rows stay as given, for the queries to refuse).
+    #[must_use]
+    pub fn from_rows(rows: &[[f32; 8]; 8]) -> Self {
+        Self {
+            origin: std::array::from_fn(|a| std::array::from_fn(|i| rows[i][a])),
+            dir: std::array::from_fn(|a| std::array::from_fn(|i| rows[i][4 + a])),
+            tmin: std::array::from_fn(|i| rows[i][3]),
+            tmax: std::array::from_fn(|i| rows[i][7]),
+        }
+    }
+
+    /// Lane `i` as a row, `[ox, oy, oz, tmin, dx, dy, dz, tmax]`: the
+    /// inverse of [`Self::from_rows`], whose ray ([`Ray::from_row`]) is
+    /// [`Self::ray`]`(i)`.
+    #[inline]
+    #[must_use]
+    pub fn row(&self, i: usize) -> [f32; 8] {
+        let (o, d) = (&self.origin, &self.dir);
+        [
+            o[0][i],
+            o[1][i],
+            o[2][i],
+            self.tmin[i],
+            d[0][i],
+            d[1][i],
+            d[2][i],
+            self.tmax[i],
+        ]
+    }
+
     /// Lane `i`'s ray: [`Ray::new`] of its origin, direction and interval.
     #[inline]
     #[must_use]
@@ -584,6 +617,20 @@ mod tests {
                 }
             }
             assert_eq!(Rays8::from_rays(&rays).lanes().is_some(), coherent);
+            // Given as rows, the same packet: each lane its row's ray.
+            let rows: [[f32; 8]; 8] = std::array::from_fn(|i| {
+                let (o, d) = (
+                    [0, 1, 2].map(|a| p.origin[a][i]),
+                    [0, 1, 2].map(|a| p.dir[a][i]),
+                );
+                [o[0], o[1], o[2], p.tmin[i], d[0], d[1], d[2], p.tmax[i]]
+            });
+            let by_rows = Rays8::from_rows(&rows);
+            for (i, r) in rays.iter().enumerate() {
+                assert_eq!(by_rows.row(i).map(f32::to_bits), rows[i].map(f32::to_bits));
+                assert_eq!(bits(&by_rows.ray(i)), bits(r));
+                assert_eq!(bits(&Ray::from_row(&rows[i])), bits(r));
+            }
             // Made by rows or one by one, the same rays.
             for (a, b) in p.rays().iter().zip(&rays) {
                 assert_eq!(bits(a), bits(b));
