@@ -493,11 +493,7 @@ fn main() -> Result<()> {
         let mesh_name = short(path);
         let workloads: Vec<(String, Vec<[f32; 8]>)> = match &args.rays {
             Some(file) => {
-                let bytes =
-                    std::fs::read(file).with_context(|| format!("reading {}", file.display()))?;
-                let rays = npy::parse_rays(&bytes).with_context(|| file.display().to_string())?;
-                let raw = rays.iter().map(raymesh_geometry::Ray::row).collect();
-                vec![(short(file), raw)]
+                vec![(short(file), npy::read_ray_rows(file)?)]
             }
             None => {
                 let tm = TriangleMesh::new(mesh.positions.clone(), tris.clone());

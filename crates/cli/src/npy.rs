@@ -4,7 +4,6 @@
 
 use anyhow::{bail, Context, Result};
 use raymesh_accel::Ray;
-use raymesh_geometry::Vec3;
 use std::io::Write;
 use std::path::Path;
 
@@ -102,28 +101,99 @@ fn parse_header(bytes: &[u8]) -> Result<Header> {
     })
 }
 
-/// Reads rays from an `(N, 8)` little-endian `float32` array.
+/// Reads rays from an `(N, 8)` little-endian `float32` array, each made
+/// from its row ([`Ray::from_row`]).
 pub fn read_rays(path: &Path) -> Result<Vec<Ray>> {
-    let bytes = std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
-    parse_rays(&bytes).with_context(|| format!("{}: bad rays array", path.display()))
+    Ok(read_ray_rows(path)?.iter().map(Ray::from_row).collect())
 }
 
-/// Parses the bytes of a rays file.
+/// Parses the bytes of a rays file into rays ([`Ray::from_row`]).
 pub fn parse_rays(bytes: &[u8]) -> Result<Vec<Ray>> {
-    let h = parse_header(bytes)?;
+    Ok(parse_ray_rows(bytes)?.iter().map(Ray::from_row).collect())
+}
+
+/// Reads the rows of an `(N, 8)` little-endian `float32` rays file
+/// (`ox oy oz tmin dx dy dz tmax`, as BENCH.md lays them out), as they
+/// are: the queries that take rows (`Scene::intersect_bare_row`, ...)
+/// make each ray where they trace it.
+///
+/// The data goes from the file straight into the rows (32 bytes a ray),
+/// with no copy of the file in memory beside them: a `Vec<Ray>` takes
+/// 60 bytes a ray, and reading the whole file first took 32 more.
+pub fn read_ray_rows(path: &Path) -> Result<Vec<[f32; 8]>> {
+    let file =
+        std::fs::File::open(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    read_rows_from(file).with_context(|| format!("{}: bad rays array", path.display()))
+}
+
+/// [`read_ray_rows`] of an open file.
+fn read_rows_from(mut file: std::fs::File) -> Result<Vec<[f32; 8]>> {
+    use std::io::{Read, Seek, SeekFrom};
+    let len = file.metadata()?.len();
+    // The header: its fixed part, then as many bytes as it says it has.
+    let mut head = Vec::new();
+    Read::take(&mut file, 12).read_to_end(&mut head)?;
+    let dict_len = match (head.get(6), head.get(8..12)) {
+        (Some(1), Some(b)) => u64::from(u16::from_le_bytes([b[0], b[1]])) + 10,
+        (Some(2 | 3), Some(b)) => u64::from(u32::from_le_bytes([b[0], b[1], b[2], b[3]])) + 12,
+        _ => 0,
+    };
+    let more = dict_len.saturating_sub(head.len() as u64);
+    Read::take(&mut file, more).read_to_end(&mut head)?;
+    let h = parse_header(&head)?;
+    let n = ray_count(&h)?;
+    let need = n.checked_mul(32).context("shape too large")?;
+    let have = len.saturating_sub(h.data_start as u64);
+    if have < need as u64 {
+        bail!("truncated: {n} rays need {need} bytes of data, the file has {have}");
+    }
+    file.seek(SeekFrom::Start(h.data_start as u64))?;
+    let mut rows = vec![[0.0f32; 8]; n];
+    if h.fortran {
+        // Column by column: each of the eight columns read in turn into
+        // its place in every row.
+        let mut col = vec![0u8; 4 * n];
+        for c in 0..8 {
+            file.read_exact(&mut col)?;
+            for (row, v) in rows.iter_mut().zip(col.chunks_exact(4)) {
+                row[c] = f32::from_le_bytes(v.try_into().expect("4 bytes"));
+            }
+        }
+    } else {
+        file.read_exact(bytemuck::cast_slice_mut(&mut rows))?;
+        // The file's floats are little-endian; so are this machine's but
+        // where they are not.
+        if cfg!(target_endian = "big") {
+            for v in rows.iter_mut().flatten() {
+                *v = f32::from_bits(u32::from_le(v.to_bits()));
+            }
+        }
+    }
+    Ok(rows)
+}
+
+/// The number of rays a rays file's header announces, or why it is not
+/// one: `<f4` and `(N, 8)`.
+fn ray_count(h: &Header) -> Result<usize> {
     if h.descr != "<f4" {
         bail!(
             "dtype is '{}', expected '<f4' (little-endian float32)",
             h.descr
         );
     }
-    let n = match h.shape[..] {
-        [n, 8] => n,
+    match h.shape[..] {
+        [n, 8] => Ok(n),
         _ => bail!(
             "shape is {:?}, expected (N, 8): ox oy oz tmin dx dy dz tmax",
             h.shape
         ),
-    };
+    }
+}
+
+/// Parses the bytes of a rays file into its rows (see [`read_ray_rows`]).
+pub fn parse_ray_rows(bytes: &[u8]) -> Result<Vec<[f32; 8]>> {
+    let h = parse_header(bytes)?;
+    let n = ray_count(&h)?;
     let data = &bytes[h.data_start..];
     let need = n.checked_mul(32).context("shape too large")?;
     if data.len() < need {
@@ -140,13 +210,7 @@ pub fn parse_rays(bytes: &[u8]) -> Result<Vec<Ray>> {
         };
         f32::from_le_bytes(data[4 * i..4 * i + 4].try_into().unwrap())
     };
-    Ok((0..n)
-        .map(|r| {
-            let o = Vec3::new(get(r, 0), get(r, 1), get(r, 2));
-            let d = Vec3::new(get(r, 4), get(r, 5), get(r, 6));
-            Ray::new(o, d, get(r, 3), get(r, 7))
-        })
-        .collect())
+    Ok((0..n).map(|r| std::array::from_fn(|c| get(r, c))).collect())
 }
 
 /// Writes a `.npy` header for the given dtype and shape (format 1.0, 64-byte aligned).
@@ -219,6 +283,35 @@ pub fn parse_hits(bytes: &[u8]) -> Result<Vec<HitRecord>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use raymesh_geometry::Vec3;
+
+    /// The rows of a rays file's bytes, parsed from memory and read from
+    /// a file holding them, which must agree: the same rows, bit for bit,
+    /// or the same error.
+    fn parse_both(bytes: &[u8]) -> Result<Vec<[f32; 8]>> {
+        use std::sync::atomic::{AtomicUsize, Ordering};
+        static NEXT: AtomicUsize = AtomicUsize::new(0);
+        let path = std::env::temp_dir().join(format!(
+            "raymesh-npy-{}-{}.npy",
+            std::process::id(),
+            NEXT.fetch_add(1, Ordering::Relaxed)
+        ));
+        std::fs::write(&path, bytes).unwrap();
+        let read = read_ray_rows(&path);
+        std::fs::remove_file(&path).unwrap();
+        let parsed = parse_ray_rows(bytes);
+        match (&parsed, &read) {
+            (Ok(a), Ok(b)) => {
+                let bits = |r: &Vec<[f32; 8]>| -> Vec<u32> {
+                    r.iter().flatten().map(|v| v.to_bits()).collect()
+                };
+                assert_eq!(bits(a), bits(b));
+            }
+            (Err(a), Err(b)) => assert_eq!(a.to_string(), b.root_cause().to_string()),
+            _ => panic!("parsed {parsed:?}, read {read:?}"),
+        }
+        parsed
+    }
 
     #[test]
     fn rays_round_trip() {
@@ -227,6 +320,10 @@ mod tests {
         write_rays(&mut b, &rays).unwrap();
         assert_eq!(b.iter().position(|&c| c == b'\n').unwrap() % 64, 63);
         let back = parse_rays(&b).unwrap();
+        assert_eq!(parse_both(&b).unwrap(), rays);
+        // Trailing bytes past the rows are left alone.
+        b.extend_from_slice(&[7; 5]);
+        assert_eq!(parse_both(&b).unwrap(), rays);
         assert_eq!(back.len(), 2);
         assert_eq!(back[0].origin(), Vec3::new(0.0, 1.0, 2.0));
         assert_eq!(back[0].tmax(), f32::INFINITY);
@@ -253,29 +350,39 @@ mod tests {
     fn bad_arrays_are_clear_errors() {
         let mut b = Vec::new();
         write_rays(&mut b, &[[0.0; 8]; 3]).unwrap();
-        let e = parse_rays(&b[..b.len() - 1]).unwrap_err().to_string();
+        let e = parse_both(&b[..b.len() - 1]).unwrap_err().to_string();
         assert!(e.contains("truncated: 3 rays need 96 bytes"), "{e}");
-        let e = parse_rays(b"hello world").unwrap_err().to_string();
+        let e = parse_both(b"hello world").unwrap_err().to_string();
         assert!(e.contains("not a .npy"), "{e}");
         let mut w = Vec::new();
         write_header(&mut w, "'<f8'", "(3, 8)").unwrap();
-        assert!(parse_rays(&w)
+        assert!(parse_both(&w)
             .unwrap_err()
             .to_string()
             .contains("dtype is '<f8'"));
         let mut w = Vec::new();
         write_header(&mut w, "'<f4'", "(3, 7)").unwrap();
-        assert!(parse_rays(&w)
+        assert!(parse_both(&w)
             .unwrap_err()
             .to_string()
             .contains("expected (N, 8)"));
         let mut w = Vec::new();
         write_header(&mut w, "'<f4'", "(24,)").unwrap();
-        assert!(parse_rays(&w)
+        assert!(parse_both(&w)
             .unwrap_err()
             .to_string()
             .contains("expected (N, 8)"));
-        assert!(parse_rays(&b[..9]).is_err());
+        assert!(parse_both(&b[..9]).is_err());
+        assert!(parse_both(&b[..40])
+            .unwrap_err()
+            .to_string()
+            .contains("truncated .npy header"));
+        assert!(parse_both(&[]).is_err());
+        let e = read_ray_rows(Path::new("/nonexistent/rays.npy")).unwrap_err();
+        assert!(
+            format!("{e:#}").contains("/nonexistent/rays.npy: cannot read"),
+            "{e:#}"
+        );
     }
 
     #[test]
@@ -293,5 +400,13 @@ mod tests {
         }
         let r = parse_rays(&w).unwrap();
         assert_eq!(r[1].origin(), Vec3::new(11.0, 12.0, 13.0));
+        let rows = parse_both(&w).unwrap();
+        assert_eq!(rows[0], [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0]);
+        assert_eq!(rows[1][7], 18.0);
+        // One byte short of the last column.
+        assert!(parse_both(&w[..w.len() - 1])
+            .unwrap_err()
+            .to_string()
+            .contains("truncated: 2 rays need 64 bytes"));
     }
 }

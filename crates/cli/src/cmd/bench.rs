@@ -6,10 +6,10 @@
 use crate::cmd::raycast::{count, tracer};
 use crate::cmd::thread_pool;
 use crate::npy::HitRecord;
-use crate::workload::{make_rays_framing, parse_frame, unpack_ray, Workload};
+use crate::workload::{make_rays_framing, parse_frame, Workload};
 use anyhow::{bail, Result};
 use indicatif::{ProgressBar, ProgressStyle};
-use raymesh_accel::{AccelKind, BuildConfig, Ray, Scene, Surface, TriangleMesh};
+use raymesh_accel::{AccelKind, BuildConfig, Scene, Surface, TriangleMesh};
 use raymesh_mesh::io::read_mesh;
 use serde::Serialize;
 use std::io::IsTerminal;
@@ -150,7 +150,7 @@ pub fn run(args: &Args) -> Result<()> {
         let tm = TriangleMesh::new(mesh.positions.clone(), mesh.triangles());
         let ntri = tm.triangles.len();
         let reference = Scene::build(tm.clone(), AccelKind::FASTEST_BVH);
-        let rays: Vec<(Workload, Vec<Ray>)> = workloads
+        let rays: Vec<(Workload, Vec<[f32; 8]>)> = workloads
             .iter()
             .map(|&w| {
                 let r = make_rays_framing(
@@ -159,10 +159,7 @@ pub fn run(args: &Args) -> Result<()> {
                     frame.unwrap_or(reference.bounds()),
                     args.size,
                     1,
-                )
-                .into_iter()
-                .map(unpack_ray)
-                .collect();
+                );
                 (w, r)
             })
             .collect();

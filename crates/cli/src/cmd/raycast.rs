@@ -3,8 +3,8 @@
 use crate::npy::{self, HitRecord};
 use anyhow::{Context, Result};
 use raymesh_accel::{
-    AccelKind, BareHit, BuildConfig, CountStats, Primitives, Ray, Scene, TriangleMesh, Triangles,
-    LANES,
+    AccelKind, BareHit, BuildConfig, CountStats, Primitives, Ray, Rays8, Scene, TriangleMesh,
+    Triangles, LANES,
 };
 use rayon::prelude::*;
 use serde::Serialize;
@@ -123,29 +123,33 @@ struct Report {
 /// Rays per parallel task: small enough to balance, large enough to amortize.
 const CHUNK: usize = 1024;
 
-/// Traces every ray, in parallel, into hit records.
-pub fn trace(scene: &Scene<Triangles>, rays: &[Ray], any_hit: bool, out: &mut [HitRecord]) {
+/// Traces every ray, given as its row (`ox oy oz tmin dx dy dz tmax`), in
+/// parallel, into hit records: one at a time, each row handed to the query
+/// as it lies (`Scene::intersect_bare_row`, `Scene::any_hit_bare_row`),
+/// which makes the ray inside its walk.
+pub fn trace(scene: &Scene<Triangles>, rows: &[[f32; 8]], any_hit: bool, out: &mut [HitRecord]) {
     out.par_chunks_mut(CHUNK)
-        .zip(rays.par_chunks(CHUNK))
-        .for_each(|(out, rays)| {
+        .zip(rows.par_chunks(CHUNK))
+        .for_each(|(out, rows)| {
             // The hits without their normals, which a record leaves out.
-            for (o, r) in out.iter_mut().zip(rays) {
+            for (o, r) in out.iter_mut().zip(rows) {
                 *o = record(if any_hit {
-                    scene.any_hit_bare(r)
+                    scene.any_hit_bare_row(r)
                 } else {
-                    scene.intersect_bare(r)
+                    scene.intersect_bare_row(r)
                 });
             }
         });
 }
 
+/// A way of tracing a batch of rays given as rows: `(scene, rows,
+/// any_hit, out)`, a hit record a row into `out`.
+pub type Tracer = fn(&Scene<Triangles>, &[[f32; 8]], bool, &mut [HitRecord]);
+
 /// How `raycast`, and `bench` with the same flags, trace a batch of
 /// rays: [`trace_packets`] with `packets`, else [`trace_stream`] with
 /// `stream`, else [`trace`] (one ray at a time).
-pub fn tracer(
-    packets: bool,
-    stream: bool,
-) -> fn(&Scene<Triangles>, &[Ray], bool, &mut [HitRecord]) {
+pub fn tracer(packets: bool, stream: bool) -> Tracer {
     if packets {
         trace_packets
     } else if stream {
@@ -167,13 +171,23 @@ fn record(h: Option<BareHit>) -> HitRecord {
 
 /// Traces every ray, in parallel, each task's rays as one stream
 /// ([`Scene::intersect_stream`] or [`Scene::any_hit_stream`]), into hit
-/// records: the same records as [`trace`].
-pub fn trace_stream(scene: &Scene<Triangles>, rays: &[Ray], any_hit: bool, out: &mut [HitRecord]) {
+/// records: the same records as [`trace`]. Each task makes its rays from
+/// their rows first (a stream is a slice of `Ray`s), one by one: made
+/// eight at a time by rows ([`Rays8::rays`]) they cost more, bunny00's
+/// 4M primary rays 219 -> 225 ms and random ones 936 -> 1,010 ms (one
+/// thread, pinned).
+pub fn trace_stream(
+    scene: &Scene<Triangles>,
+    rows: &[[f32; 8]],
+    any_hit: bool,
+    out: &mut [HitRecord],
+) {
     out.par_chunks_mut(CHUNK)
-        .zip(rays.par_chunks(CHUNK))
-        .for_each(|(out, rays)| {
+        .zip(rows.par_chunks(CHUNK))
+        .for_each(|(out, rows)| {
+            let rays: Vec<Ray> = rows.iter().map(Ray::from_row).collect();
             let mut hits = vec![None; rays.len()];
-            scene.stream_bare(rays, any_hit, &mut hits);
+            scene.stream_bare(&rays, any_hit, &mut hits);
             for (o, h) in out.iter_mut().zip(hits) {
                 *o = record(h);
             }
@@ -181,21 +195,28 @@ pub fn trace_stream(scene: &Scene<Triangles>, rays: &[Ray], any_hit: bool, out: 
 }
 
 /// Closest hits (or with `any_hit` any hits) of every ray, in parallel,
-/// eight consecutive rays traced together as a packet
-/// ([`Scene::intersect8`], [`Scene::any_hit8`]), into hit records.
-pub fn trace_packets(scene: &Scene<Triangles>, rays: &[Ray], any_hit: bool, out: &mut [HitRecord]) {
+/// eight consecutive rays traced together as a packet, given as rows
+/// ([`Rays8::from_rows`]; [`Scene::intersect8_soa_bare`],
+/// [`Scene::any_hit8_soa_bare`]), into hit records.
+pub fn trace_packets(
+    scene: &Scene<Triangles>,
+    rows: &[[f32; 8]],
+    any_hit: bool,
+    out: &mut [HitRecord],
+) {
     const _: () = assert!(CHUNK.is_multiple_of(LANES));
     out.par_chunks_mut(CHUNK)
-        .zip(rays.par_chunks(CHUNK))
-        .for_each(|(out, rays)| {
+        .zip(rows.par_chunks(CHUNK))
+        .for_each(|(out, rows)| {
             let mut outs = out.chunks_mut(LANES);
-            for packet in rays.chunks(LANES) {
+            for packet in rows.chunks(LANES) {
                 let o = outs.next().expect("as many records as rays");
-                if let Ok(packet) = <&[Ray; LANES]>::try_from(packet) {
+                if let Ok(packet) = <&[[f32; 8]; LANES]>::try_from(packet) {
+                    let packet = Rays8::from_rows(packet);
                     let hits = if any_hit {
-                        scene.any_hit8_bare(packet)
+                        scene.any_hit8_soa_bare(&packet)
                     } else {
-                        scene.intersect8_bare(packet)
+                        scene.intersect8_soa_bare(&packet)
                     };
                     for (o, h) in o.iter_mut().zip(hits) {
                         *o = record(h);
@@ -203,9 +224,9 @@ pub fn trace_packets(scene: &Scene<Triangles>, rays: &[Ray], any_hit: bool, out:
                 } else {
                     for (o, r) in o.iter_mut().zip(packet) {
                         *o = record(if any_hit {
-                            scene.any_hit_bare(r)
+                            scene.any_hit_bare_row(r)
                         } else {
-                            scene.intersect_bare(r)
+                            scene.intersect_bare_row(r)
                         });
                     }
                 }
@@ -214,16 +235,17 @@ pub fn trace_packets(scene: &Scene<Triangles>, rays: &[Ray], any_hit: bool, out:
 }
 
 /// Mean nodes visited and primitives tested per ray.
-pub fn count(scene: &Scene<Triangles>, rays: &[Ray], any_hit: bool) -> (f64, f64) {
-    let total = rays
+pub fn count(scene: &Scene<Triangles>, rows: &[[f32; 8]], any_hit: bool) -> (f64, f64) {
+    let total = rows
         .par_chunks(CHUNK)
-        .map(|rays| {
+        .map(|rows| {
             let mut c = CountStats::default();
-            for r in rays {
+            for r in rows {
+                let r = Ray::from_row(r);
                 if any_hit {
-                    scene.occluded_counted(r, &mut c);
+                    scene.occluded_counted(&r, &mut c);
                 } else {
-                    scene.intersect_counted(r, &mut c);
+                    scene.intersect_counted(&r, &mut c);
                 }
             }
             c
@@ -232,7 +254,7 @@ pub fn count(scene: &Scene<Triangles>, rays: &[Ray], any_hit: bool) -> (f64, f64
             nodes: a.nodes + b.nodes,
             prims: a.prims + b.prims,
         });
-    let n = rays.len().max(1) as f64;
+    let n = rows.len().max(1) as f64;
     (total.nodes as f64 / n, total.prims as f64 / n)
 }
 
@@ -246,7 +268,7 @@ pub fn run(args: &Args) -> Result<()> {
         crate::cmd::refuse_output_over_input(out, &[("mesh", &args.mesh), ("rays", &args.rays)])?;
     }
     let mut mesh = crate::cmd::read_mesh(&args.mesh)?;
-    let rays = npy::read_rays(&args.rays)?;
+    let rays = npy::read_ray_rows(&args.rays)?;
     // The corner copy the scene gathers is all a trace needs: the mesh
     // goes once the scene is built.
     let triangles = mesh.triangles();

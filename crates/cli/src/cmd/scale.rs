@@ -6,9 +6,9 @@
 use crate::cmd::raycast::{count, trace};
 use crate::cmd::thread_pool;
 use crate::npy::HitRecord;
-use crate::workload::{make_rays, unpack_ray, Workload};
+use crate::workload::{make_rays, Workload};
 use anyhow::{bail, Context, Result};
-use raymesh_accel::{AccelKind, Primitives, Ray, Scene, TriangleMesh};
+use raymesh_accel::{AccelKind, Primitives, Scene, TriangleMesh};
 use raymesh_mesh::synthetic;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -148,7 +148,7 @@ pub fn run(args: &Args) -> Result<()> {
         let mut spare = Some(make());
         let ntri = spare.as_ref().map_or(0, TriangleMesh::len);
         step.finish_and_clear();
-        let mut rays: Vec<Ray> = Vec::new();
+        let mut rays: Vec<[f32; 8]> = Vec::new();
         for &accel in &accels {
             let mut one_thread_ms = None;
             for (pool, &t) in pools.iter().zip(&threads) {
@@ -175,10 +175,7 @@ pub fn run(args: &Args) -> Result<()> {
                     one_thread_ms = Some(best);
                 }
                 if rays.is_empty() {
-                    rays = make_rays(Workload::Primary, &scene, args.size, 1)
-                        .into_iter()
-                        .map(unpack_ray)
-                        .collect();
+                    rays = make_rays(Workload::Primary, &scene, args.size, 1);
                 }
                 let mut hits = vec![HitRecord::MISS; rays.len()];
                 let mut trace_ms = f64::INFINITY;
