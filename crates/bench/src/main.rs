@@ -485,16 +485,34 @@ fn main() -> Result<()> {
     }
     let names = engine_names(&args.peers)?;
     let reference = names[0];
+    // A rays file, read once for every mesh.
+    let file_rays = args
+        .rays
+        .as_ref()
+        .map(|file| -> Result<(String, Vec<[f32; 8]>)> {
+            let (rows, replaced) = traceable(npy::read_ray_rows(file)?);
+            if let Some((first, row)) = replaced.first() {
+                eprintln!(
+                    "raymesh-peers: {}: {} of {} rows are not rays every engine can trace \
+                     (row {first}: {:?}); each goes to every engine as an empty ray, \
+                     which hits nothing",
+                    file.display(),
+                    replaced.len(),
+                    rows.len(),
+                    row,
+                );
+            }
+            Ok((short(file), rows))
+        })
+        .transpose()?;
     let mut builds = Vec::new();
     let mut traces = Vec::new();
     for path in &args.meshes {
         let mesh = read_mesh(path)?;
         let tris = mesh.triangles();
         let mesh_name = short(path);
-        let workloads: Vec<(String, Vec<[f32; 8]>)> = match &args.rays {
-            Some(file) => {
-                vec![(short(file), npy::read_ray_rows(file)?)]
-            }
+        let workloads: Vec<(String, Vec<[f32; 8]>)> = match &file_rays {
+            Some(rays) => vec![rays.clone()],
             None => {
                 let tm = TriangleMesh::new(mesh.positions.clone(), tris.clone());
                 let scene = Scene::build(tm, AccelKind::FASTEST_BVH);
@@ -772,9 +790,80 @@ fn markdown(names: &[&str], builds: &[Build], traces: &[Trace], threads: &[usize
     }
 }
 
+/// Embree's bound on a ray's coordinates (its `FLT_LARGE`): Embree's
+/// `RayK::valid` asserts, and Debian's build aborts on, a ray whose origin
+/// or direction has a component beyond it, or a NaN.
+const EMBREE_LARGE: f32 = 1.844e18;
+
+/// The row every engine is given in place of one it cannot trace: an
+/// empty interval (`tmin` 1 past `tmax` 0) on a finite ray, which none
+/// hits and none refuses.
+const EMPTY_ROW: [f32; 8] = [0.0, 0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0];
+
+/// A ray as BENCH.md lays it out: `[ox, oy, oz, tmin, dx, dy, dz, tmax]`.
+type Row = [f32; 8];
+
+/// The rows of a rays file as every engine can trace them: each row
+/// that is not a valid ray (`Ray::is_valid`: NaN, an infinite origin or
+/// direction, a zero direction, an empty or NaN interval), which raymesh
+/// answers with a miss, or whose origin or direction lies beyond
+/// [`EMBREE_LARGE`], replaced by [`EMPTY_ROW`]; and the rows replaced,
+/// each with its index. (Handed on as they were, such rows stopped the whole
+/// run at Embree's assertion.)
+fn traceable(mut rows: Vec<Row>) -> (Vec<Row>, Vec<(usize, Row)>) {
+    let mut replaced = Vec::new();
+    for (i, r) in rows.iter_mut().enumerate() {
+        let within = r[..3]
+            .iter()
+            .chain(&r[4..7])
+            .all(|v| v.abs() <= EMBREE_LARGE);
+        if !(within && raymesh_geometry::Ray::from_row(r).is_valid()) {
+            replaced.push((i, *r));
+            *r = EMPTY_ROW;
+        }
+    }
+    (rows, replaced)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Rows that are not rays, or that Embree would refuse, become the
+    /// empty row, and are named; valid rows stay as they are, bit for
+    /// bit; the empty row is no valid ray to raymesh (which misses it).
+    #[test]
+    fn untraceable_rows_become_empty_rays() {
+        let good = [0.5, -1.0, 2.0, 0.0, 0.0, 0.0, -1.0, f32::INFINITY];
+        let with = |i: usize, v: f32| {
+            let mut r = good;
+            r[i] = v;
+            r
+        };
+        let rows = vec![
+            good,
+            with(0, f32::NAN),
+            with(5, f32::INFINITY),
+            [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+            [0.5, -1.0, 2.0, 2.0, 0.0, 0.0, -1.0, 1.0],
+            with(7, f32::NAN),
+            with(1, 1e19),
+            with(6, -2e18),
+            with(2, 1e18),
+            with(3, 0.25),
+        ];
+        let (out, replaced) = traceable(rows.clone());
+        let at: Vec<usize> = replaced.iter().map(|r| r.0).collect();
+        assert_eq!(at, [1, 2, 3, 4, 5, 6, 7]);
+        for (i, row) in &replaced {
+            assert_eq!(row.map(f32::to_bits), rows[*i].map(f32::to_bits));
+        }
+        for (i, (a, b)) in rows.iter().zip(&out).enumerate() {
+            let want = if at.contains(&i) { EMPTY_ROW } else { *a };
+            assert_eq!(b.map(f32::to_bits), want.map(f32::to_bits), "row {i}");
+        }
+        assert!(!raymesh_geometry::Ray::from_row(&EMPTY_ROW).is_valid());
+    }
 
     fn args(extra: &[&str]) -> Args {
         let mut argv = vec!["raymesh-peers", "mesh.off"];
