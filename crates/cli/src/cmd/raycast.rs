@@ -41,7 +41,8 @@ pub struct Args {
     #[arg(long)]
     pub stats: bool,
     /// Trace eight consecutive rays at a time, as packets
-    /// (`Scene::intersect8`, with `--any-hit` `Scene::any_hit8`): fast for
+    /// (`Scene::intersect8_soa_bare`, with `--any-hit` `Scene::any_hit8_soa_bare`,
+    /// the eight rows as they lie): fast for
     /// coherent rays such as a camera's, in tiles of 8, or shadow rays
     /// toward one light; eight that do not share a direction octant and
     /// dominant axis are traced one by one. Closest hits: the same hits,
