@@ -263,12 +263,9 @@ fn config(args: &Args, set: Option<&str>) -> Result<BuildConfig> {
 /// end of its input.
 fn serve(args: &Args) -> Result<()> {
     let rays_path = args.rays.as_deref().context("--serve needs --rays")?;
-    let rays = npy::read_rays(rays_path)?;
-    let rows: Vec<[f32; 8]> = if args.rows {
-        rays.iter().map(Ray::row).collect()
-    } else {
-        Vec::new()
-    };
+    let file_rows = npy::read_ray_rows(rays_path)?;
+    let rays: Vec<Ray> = file_rows.iter().map(Ray::from_row).collect();
+    let rows = if args.rows { file_rows } else { Vec::new() };
     let scene = build_scene(args)?;
     let mut hits = Vec::new();
     let mut out = std::io::stdout().lock();
@@ -616,7 +613,7 @@ fn compare(args: &Args) -> Result<()> {
     // file that both children read.
     let (rays_path, n, _temp, source) = match &args.rays {
         Some(p) => {
-            let n = npy::read_rays(p)?.len();
+            let n = npy::read_ray_rows(p)?.len();
             (p.clone(), n, None, p.display().to_string())
         }
         None => {

@@ -3,6 +3,7 @@
 //! records `t <f4, prim <i4, u <f4, v <f4` (a miss is `t = inf, prim = -1`).
 
 use anyhow::{bail, Context, Result};
+#[cfg(test)]
 use raymesh_accel::Ray;
 use std::io::Write;
 use std::path::Path;
@@ -101,14 +102,10 @@ fn parse_header(bytes: &[u8]) -> Result<Header> {
     })
 }
 
-/// Reads rays from an `(N, 8)` little-endian `float32` array, each made
-/// from its row ([`Ray::from_row`]).
-pub fn read_rays(path: &Path) -> Result<Vec<Ray>> {
-    Ok(read_ray_rows(path)?.iter().map(Ray::from_row).collect())
-}
-
-/// Parses the bytes of a rays file into rays ([`Ray::from_row`]).
-pub fn parse_rays(bytes: &[u8]) -> Result<Vec<Ray>> {
+/// Parses the bytes of a rays file into rays ([`Ray::from_row`]): what
+/// the tests check the rows' columns by.
+#[cfg(test)]
+fn parse_rays(bytes: &[u8]) -> Result<Vec<Ray>> {
     Ok(parse_ray_rows(bytes)?.iter().map(Ray::from_row).collect())
 }
 
