@@ -135,7 +135,7 @@ pub struct BuildConfig {
     /// 16 triangles take two 8-wide block tests, and the fewer levels
     /// traced random and diffuse rays 3-10% faster on the four meshes of
     /// `../shared/meshes` with more than 10,000 triangles, for at most 6%
-    /// lost on some coherent ones (README, *Binary BVH leaves*).
+    /// lost on some coherent ones (docs/measurements.md, *Binary BVH leaves*).
     pub max_leaf: Option<usize>,
     /// Cost of one traversal step relative to one primitive test, for SAH
     /// builders. Higher values make leaves larger.
@@ -174,7 +174,7 @@ pub struct BuildConfig {
     /// split's: half the nodes a ray on the teapot in a stadium), hardly
     /// on the binned SAH trees of scanned meshes (under 0.3% in SAH), for
     /// 1.2-2.3 times the build there and up to 10 times on meshes of
-    /// long overlapping slivers (the README's *Reinsertion*).
+    /// long overlapping slivers (docs/measurements.md, *Reinsertion*).
     pub optimize: bool,
 }
 

@@ -291,7 +291,7 @@ impl<P: Primitives> Scene<P> {
     /// wider than the stores that wrote it waits for them to reach the
     /// cache. `raymesh-ab --rows` (rows made into `Ray`s inline in the
     /// timed loop, against this), pig: primary rays 1.03 (closest) and
-    /// 1.07 (occlusion), random 1.01 and 1.06 (README, stop 74).
+    /// 1.07 (occlusion), random 1.01 and 1.06 (docs/measurements.md, stop 74).
     pub fn intersect_bare_row(&self, r: &[f32; 8]) -> Option<BareHit> {
         self.closest_row(r)
             .hit()

@@ -599,7 +599,7 @@ impl<const W: usize> WideBvh<W> {
             // loop's head to the mask); kept in registers (31 or 37, the
             // ray form re-read after each leaf through `black_box`, or this
             // loop as an AVX2 function of its own), rays ran slower:
-            // 0.79-0.97x (README, stop 62's bullet).
+            // 0.79-0.97x (docs/measurements.md, stop 62's bullet).
             let mut emptied = false;
             while cur.count == 0 {
                 if !stack.has_room(W - 1) {
