@@ -120,6 +120,10 @@ pub struct TreeCost {
 pub trait Engine: Send + Sync {
     /// Short name for tables.
     fn name(&self) -> &'static str;
+    /// The raymesh structure it traces, for raymesh's engines.
+    fn accel(&self) -> Option<AccelKind> {
+        None
+    }
     /// Milliseconds its build took, from indexed triangles to a structure
     /// ready to trace (its own copies of the triangles included).
     fn build_ms(&self) -> f64;
@@ -143,8 +147,35 @@ pub const RUST_PEERS: [&str; 3] = ["obvhs", "bvh", "parry3d"];
 /// measure of the entry points in one run.
 pub const OPT_IN_PEERS: [&str; 1] = ["raymesh-ray"];
 
+/// The engine that runs raymesh over structure `kind` beside the one
+/// named `raymesh` (`raymesh-peers --accel bvh8,grid`: `raymesh-grid`).
+#[must_use]
+pub fn structure_engine(kind: AccelKind) -> &'static str {
+    match kind {
+        AccelKind::Brute => "raymesh-brute",
+        AccelKind::Aabb => "raymesh-aabb",
+        AccelKind::BvhMedian => "raymesh-bvh-median",
+        AccelKind::BvhBinned => "raymesh-bvh-binned",
+        AccelKind::BvhSweep => "raymesh-bvh-sweep",
+        AccelKind::Bvh4 => "raymesh-bvh4",
+        AccelKind::Bvh8 => "raymesh-bvh8",
+        AccelKind::Grid => "raymesh-grid",
+        AccelKind::KdTree => "raymesh-kdtree",
+    }
+}
+
+/// The structure of a [`structure_engine`]'s name, if `name` is one.
+#[must_use]
+pub fn structure_of(name: &str) -> Option<AccelKind> {
+    AccelKind::ALL
+        .into_iter()
+        .find(|&k| structure_engine(k) == name)
+}
+
 /// Builds the named engine over the mesh on the current thread pool
-/// (callers `install` the pool whose thread count they measure).
+/// (callers `install` the pool whose thread count they measure):
+/// `raymesh` and `raymesh-ray` over structure `accel`, a
+/// [`structure_engine`] over its own.
 pub fn build(
     name: &str,
     accel: AccelKind,
@@ -152,6 +183,11 @@ pub fn build(
     positions: &[Vec3],
     triangles: &[[u32; 3]],
 ) -> Box<dyn Engine> {
+    if let Some(kind) = structure_of(name) {
+        let mut engine = Raymesh::new(kind, config, positions, triangles);
+        engine.name = structure_engine(kind);
+        return Box::new(engine);
+    }
     match name {
         "raymesh" => Box::new(Raymesh::new(accel, config, positions, triangles)),
         "raymesh-ray" => Box::new(RaymeshRay(Raymesh::new(
@@ -175,6 +211,9 @@ pub struct RaymeshRay(Raymesh);
 impl Engine for RaymeshRay {
     fn name(&self) -> &'static str {
         "raymesh-ray"
+    }
+    fn accel(&self) -> Option<AccelKind> {
+        self.0.accel()
     }
     fn build_ms(&self) -> f64 {
         self.0.build_ms()
@@ -201,6 +240,9 @@ impl Engine for RaymeshRay {
 pub struct Raymesh {
     scene: Scene<Triangles>,
     build_ms: f64,
+    /// `raymesh`, or the [`structure_engine`] it runs as.
+    name: &'static str,
+    accel: AccelKind,
 }
 
 impl Raymesh {
@@ -219,13 +261,18 @@ impl Raymesh {
         Self {
             scene,
             build_ms: start.elapsed().as_secs_f64() * 1e3,
+            name: "raymesh",
+            accel,
         }
     }
 }
 
 impl Engine for Raymesh {
     fn name(&self) -> &'static str {
-        "raymesh"
+        self.name
+    }
+    fn accel(&self) -> Option<AccelKind> {
+        Some(self.accel)
     }
     fn build_ms(&self) -> f64 {
         self.build_ms
@@ -711,9 +758,12 @@ mod tests {
                             assert!(hits > rays.len() / 10, "{file}: too few hits to test");
                         }
                         // raymesh through its other entry point (each `Ray`
-                        // made by the caller) gives the same answers exactly;
-                        // the Rust peers the same triangles.
-                        for name in OPT_IN_PEERS.into_iter().chain(RUST_PEERS) {
+                        // made by the caller), and over each of its
+                        // structures as an engine of its own, gives the
+                        // same answers exactly; the Rust peers the same
+                        // triangles.
+                        let ours = AccelKind::ALL.map(structure_engine);
+                        for name in OPT_IN_PEERS.into_iter().chain(ours).chain(RUST_PEERS) {
                             let peer = pool.install(|| {
                                 build(
                                     name,
@@ -723,7 +773,13 @@ mod tests {
                                     &tris,
                                 )
                             });
+                            assert_eq!(peer.name(), name);
                             let (_, got) = peer.trace(&rays, any, &run);
+                            if let Some(kind) = structure_of(name) {
+                                assert_eq!(peer.accel(), Some(kind), "{name}");
+                                assert_eq!(got, want, "{name} on {file}, {w:?}, any-hit {any}");
+                                continue;
+                            }
                             if OPT_IN_PEERS.contains(&name) {
                                 assert_eq!(got, want, "{name} on {file}, {w:?}, any-hit {any}");
                                 continue;

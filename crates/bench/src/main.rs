@@ -1,5 +1,5 @@
 //! `raymesh-peers MESH... [--rays RAYS.npy | --workloads LIST --size N]
-//! [--threads LIST] [--repeat R] [--build-repeat B] [--interleave] [--accel A] [--peers LIST]
+//! [--threads LIST] [--repeat R] [--build-repeat B] [--interleave] [--accel LIST|all] [--peers LIST]
 //! [--markdown] [--json] [--chart OUT.png]`: the same rays through raymesh
 //! and its peers, in one run: Intel Embree 3 (built with `--features
 //! embree`) and the Rust crates obvhs, bvh and parry3d. For each engine and
@@ -7,7 +7,9 @@
 //! workload, query and thread count, Mrays/s, raymesh's ratio to each
 //! peer, and how far each engine's hits agree with Embree's (same
 //! triangle, or `t` within 1e-4 relative, as `../shared/BENCH.md` asks;
-//! with raymesh's when Embree is not built in).
+//! with raymesh's when Embree is not built in). Several raymesh
+//! structures (`--accel bvh8,grid,kdtree`) run side by side in the same
+//! run, each as an engine of its own.
 
 mod chart;
 #[cfg(feature = "embree")]
@@ -17,7 +19,7 @@ mod thread_list;
 
 use anyhow::{bail, ensure, Context, Result};
 use clap::Parser;
-use engines::{Answer, Engine, Runner, OPT_IN_PEERS, RUST_PEERS};
+use engines::{structure_engine, structure_of, Answer, Engine, Runner, OPT_IN_PEERS, RUST_PEERS};
 use raymesh::npy;
 use raymesh::workload::{make_rays, Workload};
 use raymesh_accel::{AccelKind, BuildConfig, Scene, TriangleMesh};
@@ -53,9 +55,15 @@ struct Args {
     /// three of them do not settle the ratio.
     #[arg(long)]
     build_repeat: Option<u32>,
-    /// raymesh structure.
-    #[arg(long, default_value = "bvh")]
-    accel: AccelKind,
+    /// raymesh structures, comma-separated, or `all` (every one but
+    /// `brute` and `aabb`, `bvh` first, as `raymesh bench --accel all`).
+    /// The first runs as the engine `raymesh`, whose ratio to every other
+    /// engine the tables give; each other runs beside it as
+    /// `raymesh-NAME` (`raymesh-grid`, `raymesh-kdtree`, ...), built and
+    /// traced like any peer, so that every structure meets Embree and the
+    /// others in one run.
+    #[arg(long, default_value = "bvh", value_parser = parse_accels)]
+    accel: Accels,
     /// Peers to run, comma-separated (embree, obvhs, bvh, parry3d), `all`
     /// (every one built in) or `none`. `raymesh-ray`, run only when named,
     /// is raymesh with each ray made by the caller (`Ray::new`, then
@@ -138,6 +146,37 @@ fn parse_queries(text: &str) -> Result<Queries> {
     Ok(Queries(any))
 }
 
+/// `--accel`'s structures, the one `raymesh` runs first; at least one,
+/// none twice.
+#[derive(Clone, Debug)]
+struct Accels(Vec<AccelKind>);
+
+/// Reads `--accel`: structure names (`raymesh raycast --accel`'s),
+/// comma-separated, or `all`.
+fn parse_accels(text: &str) -> Result<Accels> {
+    if text.trim() == "all" {
+        let rest = AccelKind::ALL.into_iter().filter(|k| {
+            !matches!(k, AccelKind::Brute | AccelKind::Aabb) && *k != AccelKind::FASTEST_BVH
+        });
+        return Ok(Accels(
+            std::iter::once(AccelKind::FASTEST_BVH)
+                .chain(rest)
+                .collect(),
+        ));
+    }
+    let mut kinds = Vec::new();
+    for name in text.split(',').map(str::trim) {
+        let k: AccelKind = name.parse().map_err(anyhow::Error::msg)?;
+        ensure!(
+            !kinds.contains(&k),
+            "structure '{name}' given twice (as {})",
+            k.name()
+        );
+        kinds.push(k);
+    }
+    Ok(Accels(kinds))
+}
+
 /// Milliseconds of an engine's builds after which `--build-repeat`'s
 /// default stops adding builds, once it has R.
 const BUILD_MS: f64 = 250.0;
@@ -196,6 +235,9 @@ struct Build {
     kind: &'static str,
     mesh: String,
     engine: &'static str,
+    /// The raymesh structure, for raymesh's engines.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    accel: Option<&'static str>,
     threads: usize,
     quality: Quality,
     build_ms: f64,
@@ -228,6 +270,7 @@ impl Build {
             kind: "build",
             mesh,
             engine: engine.name(),
+            accel: engine.accel().map(AccelKind::name),
             threads,
             quality,
             build_ms,
@@ -248,6 +291,9 @@ struct Trace {
     threads: usize,
     query: &'static str,
     engine: &'static str,
+    /// The raymesh structure, for raymesh's engines.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    accel: Option<&'static str>,
     mrays_per_s: f64,
     /// raymesh's Mrays/s over this engine's.
     raymesh_ratio: f64,
@@ -258,8 +304,9 @@ struct Trace {
 
 impl Trace {
     /// `engine`'s pass over `workload` (`any`: any-hit queries) at `threads`
-    /// threads, its hits agreeing with `agree_with`'s on a fraction `agree`
-    /// of the rays; raymesh's ratio is filled in once every engine has run.
+    /// threads (over raymesh structure `accel`, for raymesh's engines),
+    /// its hits agreeing with `agree_with`'s on a fraction `agree` of the
+    /// rays; raymesh's ratio is filled in once every engine has run.
     #[allow(clippy::too_many_arguments)]
     fn new(
         mesh: &str,
@@ -267,6 +314,7 @@ impl Trace {
         threads: usize,
         any: bool,
         engine: &'static str,
+        accel: Option<AccelKind>,
         mrays_per_s: f64,
         agree: f64,
         agree_with: &'static str,
@@ -278,6 +326,7 @@ impl Trace {
             threads,
             query: if any { "any-hit" } else { "closest" },
             engine,
+            accel: accel.map(AccelKind::name),
             mrays_per_s,
             raymesh_ratio: f64::NAN,
             agree,
@@ -301,8 +350,9 @@ fn cells<T>(items: &[T], cell: impl Fn(&T) -> String) -> String {
 }
 
 /// The engines to run, reference first: Embree when built in and asked
-/// for, else raymesh.
-fn engine_names(peers: &str) -> Result<Vec<&'static str>> {
+/// for, else raymesh; then raymesh (over `accels[0]`) and its other
+/// structures' engines, then the other peers.
+fn engine_names(peers: &str, accels: &[AccelKind]) -> Result<Vec<&'static str>> {
     let built: Vec<&'static str> = cfg!(feature = "embree")
         .then_some("embree")
         .into_iter()
@@ -335,7 +385,9 @@ fn engine_names(peers: &str) -> Result<Vec<&'static str>> {
     };
     chosen.dedup();
     let at = usize::from(chosen.first() == Some(&"embree"));
-    chosen.insert(at, "raymesh");
+    let ours =
+        std::iter::once("raymesh").chain(accels.iter().skip(1).map(|&k| structure_engine(k)));
+    chosen.splice(at..at, ours);
     Ok(chosen)
 }
 
@@ -346,7 +398,9 @@ fn build_engine(
     triangles: &[[u32; 3]],
     threads: usize,
 ) -> Box<dyn Engine> {
-    let (accel, quality) = (args.accel, args.quality);
+    let quality = args.quality;
+    // `raymesh` and `raymesh-ray` trace the first structure.
+    let accel = args.accel.0[0];
     #[cfg(feature = "embree")]
     if name == "embree" {
         let high = quality == Quality::High;
@@ -359,8 +413,12 @@ fn build_engine(
         ));
     }
     let _ = threads;
+    // Spatial splits for the structures that take them (the others build
+    // as at medium quality).
+    let kind = structure_of(name).unwrap_or(accel);
+    let high = quality == Quality::High && kind.takes_spatial_splits();
     let config = BuildConfig {
-        spatial_splits: if quality == Quality::High { 0.25 } else { 0.0 },
+        spatial_splits: if high { 0.25 } else { 0.0 },
         ..BuildConfig::default()
     };
     engines::build(name, accel, &config, positions, triangles)
@@ -442,7 +500,15 @@ fn interleaved(
             for &any in &args.queries.0 {
                 let (mrays, agree) = cases[i][k];
                 traces.push(Trace::new(
-                    "", workload, t, any, name, mrays, agree, names[0],
+                    "",
+                    workload,
+                    t,
+                    any,
+                    name,
+                    engines[i].accel(),
+                    mrays,
+                    agree,
+                    names[0],
                 ));
                 k += 1;
             }
@@ -483,7 +549,7 @@ fn main() -> Result<()> {
     if let Some(chart) = &args.chart {
         chart::check_path(chart)?;
     }
-    let names = engine_names(&args.peers)?;
+    let names = engine_names(&args.peers, &args.accel.0)?;
     let reference = names[0];
     // A rays file, read once for every mesh.
     let file_rays = args
@@ -601,7 +667,15 @@ fn main() -> Result<()> {
                         let mrays = rays.len() as f64 / secs / 1e6;
                         mine.push(mrays);
                         traces.push(Trace::new(
-                            &mesh_name, workload, t, any, name, mrays, agree, reference,
+                            &mesh_name,
+                            workload,
+                            t,
+                            any,
+                            name,
+                            engine.accel(),
+                            mrays,
+                            agree,
+                            reference,
                         ));
                         k += 1;
                     }
@@ -770,6 +844,35 @@ fn markdown(names: &[&str], builds: &[Build], traces: &[Trace], threads: &[usize
         );
     }
     let reference = names[0];
+    // With several raymesh structures beside Embree: each one's ratio to
+    // Embree (the table above gives `raymesh`'s to each of them).
+    let ours: Vec<&str> = names
+        .iter()
+        .copied()
+        .filter(|n| *n == "raymesh" || structure_of(n).is_some())
+        .collect();
+    if reference == "embree" && ours.len() > 1 {
+        let label = |n: &str| match traces.iter().find(|t| t.engine == n).and_then(|t| t.accel) {
+            Some(a) if n == "raymesh" => format!("raymesh ({a}) / embree"),
+            _ => format!("{n} / embree"),
+        };
+        println!(
+            "\n| mesh | workload | threads | query | {} |",
+            cells(&ours, |n| label(n))
+        );
+        println!("| --- | --- | --- | --- |{}", " --- |".repeat(ours.len()));
+        for tr in traces.iter().filter(|tr| tr.engine == reference) {
+            let ratios = cells(&ours, |n| {
+                find(tr, n).map_or(String::new(), |r| {
+                    format!("{:.2}", r.mrays_per_s / tr.mrays_per_s)
+                })
+            });
+            println!(
+                "| {} | {} | {} | {} | {ratios} |",
+                tr.mesh, tr.workload, tr.threads, tr.query
+            );
+        }
+    }
     let others: Vec<&str> = names.iter().copied().filter(|n| *n != reference).collect();
     if others.is_empty() {
         return;
@@ -896,6 +999,44 @@ mod tests {
             let argv = ["raymesh-peers", "mesh.off", "--queries", bad];
             assert!(Args::try_parse_from(argv).is_err(), "{bad:?} accepted");
         }
+    }
+
+    /// `--accel`: a list keeps its order; `all` is every structure but
+    /// brute force and the bounded list, `bvh` first; a structure named
+    /// twice (`bvh` is `bvh8`) or an unknown one is refused. The engines:
+    /// raymesh over the first structure, then one per other structure,
+    /// then the peers.
+    #[test]
+    fn structures_run_as_engines() {
+        let kinds = |a: &[&str]| args(a).accel.0;
+        assert_eq!(kinds(&[]), [AccelKind::FASTEST_BVH]);
+        assert_eq!(
+            kinds(&["--accel", "grid, bvh-binned"]),
+            [AccelKind::Grid, AccelKind::BvhBinned]
+        );
+        let all = kinds(&["--accel", "all"]);
+        assert_eq!(all[0], AccelKind::FASTEST_BVH);
+        assert_eq!(all.len(), AccelKind::ALL.len() - 2);
+        for k in AccelKind::ALL {
+            let want = !matches!(k, AccelKind::Brute | AccelKind::Aabb);
+            assert_eq!(all.contains(&k), want, "{k:?}");
+        }
+        for bad in ["bvh,bvh8", "grid,grid", "grid,foo", "", "all,grid"] {
+            let argv = ["raymesh-peers", "mesh.off", "--accel", bad];
+            assert!(Args::try_parse_from(argv).is_err(), "{bad:?} accepted");
+        }
+        let names = |peers: &str, accel: &str| {
+            engine_names(peers, &args(&["--accel", accel]).accel.0).expect("engines")
+        };
+        assert_eq!(
+            names("obvhs", "kdtree,bvh8,grid"),
+            ["raymesh", "raymesh-bvh8", "raymesh-grid", "obvhs"]
+        );
+        assert_eq!(names("none", "bvh"), ["raymesh"]);
+        assert_eq!(
+            names("bvh, raymesh-ray", "grid,bvh4"),
+            ["raymesh", "raymesh-bvh4", "bvh", "raymesh-ray"]
+        );
     }
 
     /// By default: at least R builds, then more until 0.25 s of them, at
