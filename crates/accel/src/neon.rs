@@ -103,19 +103,20 @@ fn min_ns(a: F, b: F) -> F {
     q::select(q::lt(a, b), a, b)
 }
 
-/// The slab test of an 8-wide node's boxes: the results of
-/// [`crate::bvh::slab_scalar`] bit for bit (entry distances in `t`, a bit
-/// per child entered before `bound`). Panics unless `W == 8`.
+/// The slab test of an 8-wide or a 4-wide node's boxes, 4 lanes at a
+/// time: the results of [`crate::bvh::slab_scalar`] bit for bit (entry
+/// distances in `t`, a bit per child entered before `bound`). Panics
+/// unless `W` is 4 or 8.
 #[inline(always)]
-pub(crate) fn slab8<const W: usize>(
+pub(crate) fn slab_wide<const W: usize>(
     n: &WideNode<W>,
     r: &BoxRay,
     bound: f32,
     t: &mut [f32; W],
 ) -> u32 {
-    assert!(W == 8);
+    assert!(W == 8 || W == 4);
     let mut mask = 0;
-    for half in [0, 4] {
+    for half in (0..W).step_by(4) {
         let axis = |a: usize| {
             let (near, far) = (n.plane_row(r.near[a]), n.plane_row(r.far[a]));
             let o = q::splat(r.origin[a]);
@@ -271,7 +272,8 @@ mod tests {
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(4000))]
         /// The NEON node test and the plain loops give the same bits, on
-        /// any boxes (empty slots too) and rays (NaN, infinities, zeros).
+        /// any boxes (empty slots too) and rays (NaN, infinities, zeros),
+        /// of 8-wide nodes and of 4-wide ones (the first four boxes).
         #[test]
         fn neon_slab_matches_fallback(
             corners in proptest::collection::vec((hard_vec3(), hard_vec3()), 8),
@@ -279,7 +281,8 @@ mod tests {
             o in hard_vec3(), d in hard_vec3(),
             tmin in hard_coord(), bound in hard_coord(),
         ) {
-            node_kernel_matches(slab8, &corners, used, (o, d, tmin, bound))?;
+            node_kernel_matches(slab_wide::<8>, &corners, used, (o, d, tmin, bound))?;
+            node_kernel_matches(slab_wide::<4>, &corners[..4], used & 15, (o, d, tmin, bound))?;
         }
     }
 

@@ -2,6 +2,7 @@
 
 #[cfg(target_arch = "x86_64")]
 use crate::bvh::GroupLeaf;
+use crate::bvh::WideBvh;
 use crate::simd::avx_run;
 #[cfg(target_arch = "x86_64")]
 use crate::simd::{BlockRay, AXIS_CLASSES};
@@ -347,6 +348,9 @@ impl<P: Primitives> Scene<P> {
             return self.closest_avx2(bvh, avx, make, counter);
         }
         let ray = &make();
+        if let (Some(WideRef::W4(bvh)), Some(avx)) = (self.wide_blocks(), Avx2::detect()) {
+            return self.closest_wide4(bvh, avx, ray, counter);
+        }
         if let (Accel::Grid(_) | Accel::KdTree(_), Some(avx)) = (&self.accel, Avx2::detect()) {
             return self.lists_avx2::<false, C>(avx, ray, counter);
         }
@@ -440,9 +444,9 @@ impl<P: Primitives> Scene<P> {
     /// times slower). A `bvh8` that slows down that much after an
     /// unrelated change is worth checking for that first.
     #[inline(always)]
-    fn closest_avx2<C: RayCounter>(
+    fn closest_avx2<const W: usize, C: RayCounter>(
         &self,
-        bvh: &Bvh8,
+        bvh: &WideBvh<W>,
         avx: Avx2,
         make: impl Fn() -> Ray,
         counter: &mut C,
@@ -475,6 +479,34 @@ impl<P: Primitives> Scene<P> {
             return self.closest_general(&make(), counter);
         }
         result
+    }
+
+    /// [`Self::closest_avx2`] over a 4-wide BVH (its node test in SSE,
+    /// [`crate::simd::slab4`]), the ray made before: a function of its
+    /// own, so that the 8-wide walk's code does not change with it (as
+    /// [`Self::lists_avx2`]). Before, `bvh4` walked in portable code, its
+    /// node test scalar and each leaf a call.
+    #[inline(never)]
+    fn closest_wide4<C: RayCounter>(
+        &self,
+        bvh: &Bvh4,
+        avx: Avx2,
+        ray: &Ray,
+        counter: &mut C,
+    ) -> PackedHit {
+        self.closest_avx2(bvh, avx, || *ray, counter)
+    }
+
+    /// [`Self::closest_wide4`] for any-hit queries.
+    #[inline(never)]
+    fn any_wide4<C: RayCounter>(
+        &self,
+        bvh: &Bvh4,
+        avx: Avx2,
+        ray: &Ray,
+        counter: &mut C,
+    ) -> PackedHit {
+        self.any_avx2(bvh, avx, || *ray, counter)
     }
 
     /// The closest hit (or, `ANY`, the first hit found) over a grid or a
@@ -534,9 +566,9 @@ impl<P: Primitives> Scene<P> {
     /// [`Self::closest_avx2`] for any-hit queries, for
     /// [`Self::any_hit_counted`].
     #[inline(always)]
-    fn any_avx2<C: RayCounter>(
+    fn any_avx2<const W: usize, C: RayCounter>(
         &self,
-        bvh: &Bvh8,
+        bvh: &WideBvh<W>,
         avx: Avx2,
         make: impl Fn() -> Ray,
         counter: &mut C,
@@ -761,6 +793,7 @@ impl<P: Primitives> Scene<P> {
     fn first_hit_made<C: RayCounter>(&self, make: impl Fn() -> Ray, counter: &mut C) -> PackedHit {
         match (self.wide_blocks(), Avx2::detect()) {
             (Some(WideRef::W8(bvh)), Some(avx)) => self.any_avx2(bvh, avx, make, counter),
+            (Some(WideRef::W4(bvh)), Some(avx)) => self.any_wide4(bvh, avx, &make(), counter),
             (Some(WideRef::W2(bvh)), Some(avx)) => self.any_binary_avx2(bvh, avx, &make(), counter),
             (None, Some(avx)) if matches!(self.accel, Accel::Grid(_) | Accel::KdTree(_)) => {
                 self.lists_avx2::<true, C>(avx, &make(), counter)

@@ -286,6 +286,84 @@ fn truncate3_scalar(f: raymesh_geometry::Vec3A) -> u32 {
     k(f.x) | k(f.y) << 8 | k(f.z) << 16
 }
 
+/// The node test of a `W`-wide node for the one-ray walks that run in an
+/// AVX2 region ([`crate::bvh::WideBvh::traverse_blocks_avx2`]):
+/// [`slab8`] for 8-wide nodes, [`slab4`] for 4-wide ones (the branch is
+/// on a constant). The same result as `bvh::wide::slab_scalar`, bit for
+/// bit. Panics unless `W` is 4 or 8.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) fn slab_wide<const W: usize>(
+    n: &WideNode<W>,
+    r: &BoxRay,
+    bound: f32,
+    t: &mut [f32; W],
+) -> u32 {
+    if W == 8 {
+        slab8(n, r, bound, t)
+    } else {
+        slab4(n, r, bound, t)
+    }
+}
+
+/// The slab test of a 4-wide node's boxes in SSE (part of every x86-64
+/// CPU, so no check is needed): the same result as
+/// `bvh::wide::slab_scalar` (entry distances in `t`, a bit per child
+/// entered before `bound`), bit for bit, with the operations of
+/// [`slab8`] on 4 lanes. The plain loops of `slab_scalar` took `bvh4`'s
+/// node test as scalar code. Panics unless `W == 4`.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) fn slab4<const W: usize>(
+    n: &WideNode<W>,
+    r: &BoxRay,
+    bound: f32,
+    t: &mut [f32; W],
+) -> u32 {
+    assert!(W == 4);
+    // SAFETY: every array read or written holds W == 4 floats (a 4-wide
+    // node is 32 floats, and `slab4_sse` reads no further), and SSE is
+    // part of x86-64.
+    unsafe { slab4_sse(std::ptr::from_ref(n).cast(), r, bound, t.as_mut_ptr()) }
+}
+
+/// # Safety
+/// `node` must point to a whole 4-wide node (32 floats: 6 rows of 4
+/// bounds, then the child and count rows) and `t` to 4 writable floats.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn slab4_sse(node: *const f32, r: &BoxRay, bound: f32, t: *mut f32) -> u32 {
+    use std::arch::x86_64::*;
+    let mut lo = [_mm_setzero_ps(); 3];
+    let mut hi = [_mm_setzero_ps(); 3];
+    for a in 0..3 {
+        // `BoxRay`'s offsets count 8 floats a row (an 8-wide node's); a
+        // 4-wide node's rows are 4 apart. Masked to multiples of 4 below
+        // 32: a row can never leave the node.
+        let (near, far) = ((r.near[a] >> 1) & 0x1c, (r.far[a] >> 1) & 0x1c);
+        let o = _mm_set1_ps(r.origin[a]);
+        let inv = _mm_set1_ps(r.inv_dir[a]);
+        let inv_exit = _mm_set1_ps(r.inv_exit[a]);
+        // SAFETY: rows at most 28 floats into a node of 32 (the contract).
+        unsafe {
+            lo[a] = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(node.add(near)), o), inv);
+            hi[a] = _mm_mul_ps(_mm_sub_ps(_mm_loadu_ps(node.add(far)), o), inv_exit);
+        }
+    }
+    // `max_ps(a, b)`: `a > b ? a : b`, as in `slab8_avx`.
+    let e = _mm_max_ps(
+        _mm_max_ps(lo[0], lo[1]),
+        _mm_max_ps(lo[2], _mm_set1_ps(r.tmin)),
+    );
+    let x = _mm_min_ps(
+        _mm_min_ps(hi[0], hi[1]),
+        _mm_min_ps(hi[2], _mm_set1_ps(bound)),
+    );
+    // SAFETY: `t` holds 4 floats (the contract).
+    unsafe { _mm_storeu_ps(t, e) };
+    _mm_movemask_ps(_mm_cmple_ps(e, x)) as u32
+}
+
 /// The slab test of an 8-wide node's boxes in AVX: the same result as
 /// `bvh::wide::slab_scalar` (entry distances in `t`, a bit per child
 /// entered before `bound`). Panics unless `W == 8` or without AVX2.
@@ -2117,6 +2195,23 @@ mod tests {
                 with_avx2(|| slab8(n, r, bound, t))
             };
             node_kernel_matches(avx, &corners, used, (o, d, tmin, bound))?;
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(4000))]
+        /// The SSE kernel of 4-wide nodes and the plain loops give the
+        /// same bits, on every CPU (SSE is part of x86-64), and so does the
+        /// dispatch the AVX2 walks call.
+        #[test]
+        fn sse_slab_matches_fallback(
+            corners in proptest::collection::vec((hard_vec3(), hard_vec3()), 4),
+            used in 0u32..16,
+            o in hard_vec3(), d in hard_vec3(),
+            tmin in hard_coord(), bound in hard_coord(),
+        ) {
+            node_kernel_matches(slab4::<4>, &corners, used, (o, d, tmin, bound))?;
+            node_kernel_matches(slab_wide::<4>, &corners, used, (o, d, tmin, bound))?;
         }
     }
 

@@ -88,20 +88,20 @@ pub(crate) fn lanes_match(
     Ok(())
 }
 
-/// Checks a SIMD kernel of the 8-wide node test against the portable
+/// Checks a SIMD kernel of the `W`-wide node test against the portable
 /// loops, bit for bit: a node of the `used` boxes among `corners` (the
 /// others empty), a ray from `o` along `d` starting at `tmin`, `bound`.
 #[cfg(any(
     target_arch = "x86_64",
     all(target_arch = "aarch64", target_feature = "neon")
 ))]
-pub(crate) fn node_kernel_matches(
-    kernel: impl Fn(&crate::bvh::Node8, &crate::bvh::BoxRay, f32, &mut [f32; 8]) -> u32,
+pub(crate) fn node_kernel_matches<const W: usize>(
+    kernel: impl Fn(&crate::bvh::WideNode<W>, &crate::bvh::BoxRay, f32, &mut [f32; W]) -> u32,
     corners: &[(Vec3, Vec3)],
     used: u32,
     (o, d, tmin, bound): (Vec3, Vec3, f32, f32),
 ) -> Result<(), TestCaseError> {
-    let mut node = crate::bvh::Node8::empty();
+    let mut node = crate::bvh::WideNode::<W>::empty();
     for (i, (a, b)) in corners.iter().enumerate() {
         if used >> i & 1 != 0 {
             node.set_box(i, Aabb::new(a.min(*b), a.max(*b)));
@@ -110,11 +110,11 @@ pub(crate) fn node_kernel_matches(
     let ray = raymesh_geometry::Ray::new(o, d, tmin.min(0.0), f32::INFINITY);
     let mut r = crate::bvh::BoxRay::new(&ray);
     r.tmin = tmin;
-    let (mut ta, mut tb) = ([0.0f32; 8], [0.0f32; 8]);
+    let (mut ta, mut tb) = ([0.0f32; W], [0.0f32; W]);
     let ma = kernel(&node, &r, bound, &mut ta);
     let mb = crate::bvh::slab_scalar(&node, &r, bound, &mut tb);
     prop_assert_eq!(ma, mb);
-    for i in 0..8 {
+    for i in 0..W {
         prop_assert_eq!(ta[i].to_bits(), tb[i].to_bits(), "lane {}", i);
     }
     Ok(())

@@ -1,4 +1,4 @@
-//! The AVX-512 builds of the 8-wide BVH walks (the AVX2 walks compiled
+//! The AVX-512 builds of the wide BVH walks (the AVX2 walks compiled
 //! with AVX-512F and AVX-512VL, for their 32 vector registers) against
 //! the AVX2 builds, on machines that have AVX-512: closest hits, any
 //! hits and occlusion, bit for bit, and brute force's closest hits. The
@@ -12,8 +12,12 @@ use common::{bare_of as key, kernel_cases, row_answers, row_of};
 
 #[test]
 fn avx512_builds_agree_with_avx2_builds() {
-    for (name, m, rays, want) in kernel_cases() {
-        let s = Scene::from_mesh_with(&m, AccelKind::Bvh8, &BuildConfig::default());
+    for ((name, m, rays, want), kind) in kernel_cases()
+        .into_iter()
+        .flat_map(|case| [AccelKind::Bvh8, AccelKind::Bvh4].map(|k| (case.clone(), k)))
+    {
+        let name = format!("{name} {}", kind.name());
+        let s = Scene::from_mesh_with(&m, kind, &BuildConfig::default());
         let mut runs = Vec::new();
         for on in [true, false] {
             set_avx512_enabled(on);
