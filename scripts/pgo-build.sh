@@ -61,10 +61,11 @@ train() {
                 "$bin/raymesh" raycast "$m" --rays "$work/$mesh-$w.npy" --accel bvh8 $mode --any-hit --threads 1 >/dev/null
             done
         done
-        # The grid's and the k-d tree's walks (AVX2 regions of their own:
-        # left out of the training, LLVM compiled them as cold and left
-        # their closures out of line, every kernel intrinsic a call).
-        for accel in grid kdtree; do
+        # The 4-wide BVH's, the grid's and the k-d tree's walks (AVX2
+        # regions of their own: left out of the training, LLVM compiled
+        # the grid's and the k-d tree's as cold and left their closures out
+        # of line, every kernel intrinsic a call).
+        for accel in bvh4 grid kdtree; do
             for w in primary random; do
                 "$bin/raymesh" raycast "$m" --rays "$work/$mesh-$w.npy" --accel "$accel" --threads 1 >/dev/null
                 "$bin/raymesh" raycast "$m" --rays "$work/$mesh-$w.npy" --accel "$accel" --any-hit --threads 1 >/dev/null

@@ -56,7 +56,8 @@ struct Args {
     #[arg(long)]
     build_repeat: Option<u32>,
     /// raymesh structures, comma-separated, or `all` (every one but
-    /// `brute` and `aabb`, `bvh` first, as `raymesh bench --accel all`).
+    /// `brute` and `aabb`, as for `raymesh bench --accel all`, with `bvh`
+    /// first).
     /// The first runs as the engine `raymesh`, whose ratio to every other
     /// engine the tables give; each other runs beside it as
     /// `raymesh-NAME` (`raymesh-grid`, `raymesh-kdtree`, ...), built and
