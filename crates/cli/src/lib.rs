@@ -28,3 +28,9 @@ mod tests {
         assert_eq!(super::rate(0.0), "0.00");
     }
 }
+
+/// The README's Rust examples, run as doctests so that they keep up with
+/// the library.
+#[cfg(doctest)]
+#[doc = include_str!("../../../README.md")]
+pub struct ReadmeDoctests;
