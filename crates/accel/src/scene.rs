@@ -349,7 +349,7 @@ impl<P: Primitives> Scene<P> {
         }
         let ray = &make();
         if let (Some(WideRef::W4(bvh)), Some(avx)) = (self.wide_blocks(), Avx2::detect()) {
-            return self.closest_wide4(bvh, avx, ray, counter);
+            return self.wide4_avx2::<false, C>(bvh, avx, ray, counter);
         }
         if let (Accel::Grid(_) | Accel::KdTree(_), Some(avx)) = (&self.accel, Avx2::detect()) {
             return self.lists_avx2::<false, C>(avx, ray, counter);
@@ -481,32 +481,25 @@ impl<P: Primitives> Scene<P> {
         result
     }
 
-    /// [`Self::closest_avx2`] over a 4-wide BVH (its node test in SSE,
-    /// [`crate::simd::slab4`]), the ray made before: a function of its
-    /// own, so that the 8-wide walk's code does not change with it (as
+    /// [`Self::closest_avx2`] (or, `ANY`, [`Self::any_avx2`]) over a
+    /// 4-wide BVH (its node test in SSE, [`crate::simd::slab4`]), the ray
+    /// made before: a function of its own for each query, so that the
+    /// 8-wide walk's code does not change with it (as
     /// [`Self::lists_avx2`]). Before, `bvh4` walked in portable code, its
     /// node test scalar and each leaf a call.
     #[inline(never)]
-    fn closest_wide4<C: RayCounter>(
+    fn wide4_avx2<const ANY: bool, C: RayCounter>(
         &self,
         bvh: &Bvh4,
         avx: Avx2,
         ray: &Ray,
         counter: &mut C,
     ) -> PackedHit {
-        self.closest_avx2(bvh, avx, || *ray, counter)
-    }
-
-    /// [`Self::closest_wide4`] for any-hit queries.
-    #[inline(never)]
-    fn any_wide4<C: RayCounter>(
-        &self,
-        bvh: &Bvh4,
-        avx: Avx2,
-        ray: &Ray,
-        counter: &mut C,
-    ) -> PackedHit {
-        self.any_avx2(bvh, avx, || *ray, counter)
+        if ANY {
+            self.any_avx2(bvh, avx, || *ray, counter)
+        } else {
+            self.closest_avx2(bvh, avx, || *ray, counter)
+        }
     }
 
     /// The closest hit (or, `ANY`, the first hit found) over a grid or a
@@ -793,7 +786,9 @@ impl<P: Primitives> Scene<P> {
     fn first_hit_made<C: RayCounter>(&self, make: impl Fn() -> Ray, counter: &mut C) -> PackedHit {
         match (self.wide_blocks(), Avx2::detect()) {
             (Some(WideRef::W8(bvh)), Some(avx)) => self.any_avx2(bvh, avx, make, counter),
-            (Some(WideRef::W4(bvh)), Some(avx)) => self.any_wide4(bvh, avx, &make(), counter),
+            (Some(WideRef::W4(bvh)), Some(avx)) => {
+                self.wide4_avx2::<true, C>(bvh, avx, &make(), counter)
+            }
             (Some(WideRef::W2(bvh)), Some(avx)) => self.any_binary_avx2(bvh, avx, &make(), counter),
             (None, Some(avx)) if matches!(self.accel, Accel::Grid(_) | Accel::KdTree(_)) => {
                 self.lists_avx2::<true, C>(avx, &make(), counter)
