@@ -44,3 +44,135 @@ fn commands_refuse_bad_counts() {
         "--threads 100000: at most 1024 worker threads",
     );
 }
+
+/// `bench --peers` hands the run to `raymesh-peers` (here a script that
+/// records its arguments, named by `RAYMESH_PEERS`) with the command's own
+/// settings translated and the arguments after `--` passed on; settings
+/// `raymesh-peers` has no form of are refused, not dropped; a missing
+/// `raymesh-peers` is an error that says how to build it.
+#[cfg(unix)]
+#[test]
+fn bench_hands_peers_to_raymesh_peers() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = common::tmpdir("peers");
+    let (script, log) = (dir.join("fake-peers"), dir.join("args.txt"));
+    std::fs::write(
+        &script,
+        format!(
+            "#!/bin/sh\nprintf '%s\\n' \"$@\" > '{}'\n[ \"$1\" != fail.off ]\n",
+            log.display()
+        ),
+    )
+    .unwrap();
+    std::fs::set_permissions(&script, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let peers = || {
+        let mut c = raymesh();
+        c.env("RAYMESH_PEERS", &script);
+        c
+    };
+    let args = |extra: &[&str]| {
+        common::run_ok(
+            peers()
+                .args(["bench", "a.off", "b.off", "--peers", "embree"])
+                .args(extra),
+        );
+        std::fs::read_to_string(&log).unwrap()
+    };
+    let expect = |list: &[&str]| list.iter().map(|a| format!("{a}\n")).collect::<String>();
+    assert_eq!(
+        args(&[
+            "--threads",
+            "1,2",
+            "--size",
+            "64",
+            "--repeat",
+            "2",
+            "--json",
+            "--",
+            "--interleave",
+            "--chart",
+            "c.png",
+        ]),
+        expect(&[
+            "a.off",
+            "b.off",
+            "--peers",
+            "embree",
+            "--accel",
+            "bvh",
+            "--workloads",
+            "primary,random,diffuse,shadow",
+            "--size",
+            "64",
+            "--threads",
+            "1,2",
+            "--repeat",
+            "2",
+            "--json",
+            "--interleave",
+            "--chart",
+            "c.png",
+        ])
+    );
+    assert_eq!(
+        args(&[
+            "--accel",
+            "bvh8,grid",
+            "--workloads",
+            "random",
+            "--threads",
+            "1",
+            "--stream"
+        ]),
+        expect(&[
+            "a.off",
+            "b.off",
+            "--peers",
+            "embree",
+            "--accel",
+            "bvh8,grid",
+            "--workloads",
+            "random",
+            "--size",
+            "1024",
+            "--threads",
+            "1",
+            "--repeat",
+            "3",
+            "--stream",
+        ])
+    );
+    // Its failure is the command's.
+    fails_with(
+        peers().args(["bench", "fail.off", "--peers", "all", "--threads", "1"]),
+        "fake-peers failed",
+    );
+    for flag in [
+        &["--optimize"][..],
+        &["--spatial-splits"],
+        &["--frame", "0,0,0,1,1,1"],
+    ] {
+        fails_with(
+            peers()
+                .args(["bench", "a.off", "--peers", "all"])
+                .args(flag),
+            "does not go with --peers",
+        );
+    }
+    fails_with(
+        peers().args(["bench", "a.off", "--peers", "all", "--threads", "1,100000"]),
+        "at most 1024 worker threads",
+    );
+    fails_with(
+        raymesh()
+            .env("RAYMESH_PEERS", dir.join("none"))
+            .args(["bench", "a.off", "--peers", "all"]),
+        "which is not a file",
+    );
+    // Arguments after `--` are for the peers only.
+    fails_with(
+        raymesh().args(["bench", "a.off", "--", "--interleave"]),
+        "--peers <LIST>",
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}

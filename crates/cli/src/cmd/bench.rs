@@ -1,13 +1,15 @@
 //! `raymesh bench MESH... [--accel LIST|all] [--workloads LIST] [--size N]
 //! [--threads LIST] [--repeat R] [--json] [--spatial-splits [FRACTION]]
-//! [--packets | --stream]`: BENCH.md's workloads through every chosen
-//! structure, one table per mesh (or JSON lines).
+//! [--packets | --stream] [--peers LIST [-- ARGS...]]`: BENCH.md's
+//! workloads through every chosen structure, one table per mesh (or JSON
+//! lines); with `--peers`, the same rays through raymesh and its peers
+//! (Embree, obvhs, bvh, parry3d) side by side, run by `raymesh-peers`.
 
 use crate::cmd::raycast::{count, tracer};
-use crate::cmd::thread_pool;
+use crate::cmd::{thread_pool, MAX_THREADS};
 use crate::npy::HitRecord;
 use crate::workload::{make_rays_framing, parse_frame, Workload};
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use raymesh_accel::{AccelKind, BuildConfig, Scene, Surface, TriangleMesh};
 use raymesh_mesh::io::read_mesh;
@@ -22,9 +24,11 @@ pub struct Args {
     /// Mesh files.
     #[arg(required = true)]
     pub meshes: Vec<PathBuf>,
-    /// Structures, comma-separated, or `all` (every structure but brute and aabb, which test every triangle).
-    #[arg(long, default_value = "bvh,bvh4,grid,kdtree")]
-    pub accel: String,
+    /// Structures, comma-separated, or `all` (every structure but brute and
+    /// aabb, which test every triangle) [default: bvh,bvh4,grid,kdtree; with
+    /// --peers, bvh].
+    #[arg(long)]
+    pub accel: Option<String>,
     /// Workloads, comma-separated (BENCH.md).
     #[arg(long, default_value = "primary,random,diffuse,shadow")]
     pub workloads: String,
@@ -63,6 +67,20 @@ pub struct Args {
     /// the caches.
     #[arg(long)]
     pub stream: bool,
+    /// Compare with peers instead, in one run on the same rays: `embree`,
+    /// `obvhs`, `bvh`, `parry3d`, comma-separated, or `all` (every one
+    /// built in). Runs `raymesh-peers` (crates/bench, which keeps the
+    /// peers' dependencies out of raymesh; found beside this executable,
+    /// or named by the RAYMESH_PEERS environment variable) with this
+    /// command's meshes, --accel, --workloads, --size, --threads, --repeat,
+    /// --packets, --stream and --json, and the arguments after `--` (e.g.
+    /// `-- --interleave --markdown --chart peers.png`; `raymesh-peers
+    /// --help` lists them).
+    #[arg(long, value_name = "LIST")]
+    pub peers: Option<String>,
+    /// With --peers: more arguments for `raymesh-peers`, after `--`.
+    #[arg(last = true, value_name = "PEER_ARGS", requires = "peers")]
+    pub peer_args: Vec<String>,
 }
 
 /// One measured row.
@@ -96,25 +114,10 @@ fn parse_list<T: std::str::FromStr<Err = String>>(s: &str) -> Result<Vec<T>> {
         .collect()
 }
 
-/// Runs the command.
-pub fn run(args: &Args) -> Result<()> {
-    let accels: Vec<AccelKind> = if args.accel == "all" {
-        AccelKind::ALL
-            .into_iter()
-            .filter(|k| !matches!(k, AccelKind::Brute | AccelKind::Aabb))
-            .collect()
-    } else {
-        parse_list(&args.accel)?
-    };
-    let workloads: Vec<Workload> = parse_list(&args.workloads)?;
-    let config = BuildConfig {
-        spatial_splits: args.spatial_splits.unwrap_or(0.0),
-        optimize: args.optimize,
-        ..BuildConfig::default()
-    };
-    let frame = args.frame.as_deref().map(parse_frame).transpose()?;
+/// The thread counts `--threads` names, or 1 and all cores.
+fn thread_counts(arg: Option<&str>) -> Result<Vec<usize>> {
     let all = thread_pool(None)?.current_num_threads();
-    let threads: Vec<usize> = match &args.threads {
+    let threads: Vec<usize> = match arg {
         Some(t) => t
             .split(',')
             .map(|x| {
@@ -129,6 +132,34 @@ pub fn run(args: &Args) -> Result<()> {
     if threads.contains(&0) {
         bail!("--threads: thread counts must be at least 1");
     }
+    if let Some(&n) = threads.iter().find(|&&n| n > MAX_THREADS) {
+        bail!("--threads {n}: at most {MAX_THREADS} worker threads (this machine has {all})");
+    }
+    Ok(threads)
+}
+
+/// Runs the command.
+pub fn run(args: &Args) -> Result<()> {
+    if let Some(peers) = &args.peers {
+        return run_peers(args, peers);
+    }
+    let accel = args.accel.as_deref().unwrap_or("bvh,bvh4,grid,kdtree");
+    let accels: Vec<AccelKind> = if accel == "all" {
+        AccelKind::ALL
+            .into_iter()
+            .filter(|k| !matches!(k, AccelKind::Brute | AccelKind::Aabb))
+            .collect()
+    } else {
+        parse_list(accel)?
+    };
+    let workloads: Vec<Workload> = parse_list(&args.workloads)?;
+    let config = BuildConfig {
+        spatial_splits: args.spatial_splits.unwrap_or(0.0),
+        optimize: args.optimize,
+        ..BuildConfig::default()
+    };
+    let frame = args.frame.as_deref().map(parse_frame).transpose()?;
+    let threads = thread_counts(args.threads.as_deref())?;
     let pools: Vec<rayon::ThreadPool> = threads
         .iter()
         .map(|&t| thread_pool(Some(t)))
@@ -230,6 +261,82 @@ pub fn run(args: &Args) -> Result<()> {
     }
     bar.finish_and_clear();
     Ok(())
+}
+
+/// `--peers`: hands the run to `raymesh-peers` with this command's
+/// settings, and fails as it fails. The peers are a separate binary so
+/// that raymesh itself never links Embree or the other crates (STYLE.md).
+fn run_peers(args: &Args, peers: &str) -> Result<()> {
+    // What `raymesh-peers` has no form of is refused rather than dropped.
+    for (given, flag) in [
+        (args.frame.is_some(), "--frame"),
+        (args.spatial_splits.is_some(), "--spatial-splits"),
+        (args.optimize, "--optimize"),
+    ] {
+        if given {
+            bail!(
+                "{flag} does not go with --peers: raymesh-peers has no such setting \
+                 (its --quality high builds raymesh and Embree with spatial splits: \
+                 give it after `--`)"
+            );
+        }
+    }
+    let exe = peers_executable()?;
+    let threads = thread_counts(args.threads.as_deref())?
+        .iter()
+        .map(usize::to_string)
+        .collect::<Vec<_>>()
+        .join(",");
+    let mut cmd = std::process::Command::new(&exe);
+    cmd.args(&args.meshes)
+        .args(["--peers", peers])
+        .args(["--accel", args.accel.as_deref().unwrap_or("bvh")])
+        .args(["--workloads", &args.workloads])
+        .args(["--size", &args.size.to_string()])
+        .args(["--threads", &threads])
+        .args(["--repeat", &args.repeat.to_string()]);
+    for (given, flag) in [
+        (args.packets, "--packets"),
+        (args.stream, "--stream"),
+        (args.json, "--json"),
+    ] {
+        if given {
+            cmd.arg(flag);
+        }
+    }
+    cmd.args(&args.peer_args);
+    let status = cmd
+        .status()
+        .with_context(|| format!("could not run {}", exe.display()))?;
+    if !status.success() {
+        bail!("{} failed ({status})", exe.display());
+    }
+    Ok(())
+}
+
+/// The `raymesh-peers` executable: `RAYMESH_PEERS` when set, else the one
+/// beside this executable (where cargo builds both), with how to build it
+/// when there is none.
+fn peers_executable() -> Result<PathBuf> {
+    if let Some(p) = std::env::var_os("RAYMESH_PEERS") {
+        let p = PathBuf::from(p);
+        if !p.is_file() {
+            bail!("RAYMESH_PEERS names {}, which is not a file", p.display());
+        }
+        return Ok(p);
+    }
+    let name = format!("raymesh-peers{}", std::env::consts::EXE_SUFFIX);
+    let exe = std::env::current_exe().context("could not find the raymesh executable")?;
+    let beside = exe.with_file_name(&name);
+    if beside.is_file() {
+        return Ok(beside);
+    }
+    bail!(
+        "--peers runs {name}, which is not beside {} (nor named by RAYMESH_PEERS); build it \
+         first, with Embree (Debian's libembree-dev) or without: \
+         `cargo build --release -p raymesh-bench --features embree --bin raymesh-peers`",
+        exe.display()
+    )
 }
 
 fn print_rows(rows: &[Row], json: bool, path: &std::path::Path, ntri: usize) -> Result<()> {
