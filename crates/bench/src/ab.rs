@@ -23,7 +23,7 @@ use clap::Parser;
 use raymesh::npy;
 use raymesh::workload::{make_rays, row_ray, Workload};
 use raymesh_accel::{
-    AccelKind, BareHit, BuildConfig, Ray, Scene, Surface, TriangleMesh, Triangles, LANES,
+    AccelKind, BareHit, BuildConfig, Ray, Rays8, Scene, Surface, TriangleMesh, Triangles, LANES,
 };
 use raymesh_mesh::io::read_mesh;
 use serde::Serialize;
@@ -69,7 +69,10 @@ struct Args {
     #[arg(long, default_value = "closest,any-hit")]
     query: String,
     /// Eight consecutive rays at a time (`Scene::intersect8_bare`,
-    /// `Scene::any_hit8_bare`).
+    /// `Scene::any_hit8_bare`, `Scene::occluded8`; with `--rows`, each
+    /// eight rows go in as rows, `Rays8`, to `Scene::intersect8_soa_bare`,
+    /// `any_hit8_soa_bare` and `occluded8_soa`, as `raymesh-peers
+    /// --packets` and `raycast --packets` hand them).
     #[arg(long, conflicts_with = "stream")]
     packets: bool,
     /// Each chunk traced as streams of 1,024 rays (`Scene::stream_bare`).
@@ -82,8 +85,8 @@ struct Args {
     /// `--rows` refuses it). One ray at a time, each row goes in as it
     /// lies (`Scene::intersect_bare_row`, `any_hit_bare_row`,
     /// `occluded_row`), the ray made inside the query, as `raymesh-peers`
-    /// hands them over since stop 74; packets and streams make their
-    /// `Ray`s from the rows first.
+    /// hands them over since stop 74; packets go in as rows (`Rays8`),
+    /// and streams make their `Ray`s from the rows first.
     #[arg(long)]
     rows: bool,
     /// Rays a chunk: each build traces a chunk, then the other.
@@ -398,6 +401,20 @@ fn trace_into(
         }
     } else if packets {
         for (c, out) in hits.chunks_mut(LANES).enumerate() {
+            // Whole packets of rows go in as rows (`Rays8`), as
+            // `raymesh-peers --packets` and `raycast --packets` hand them.
+            if let Input::Rows(rows) = input {
+                let at = c * LANES;
+                if let Ok(p) = <&[[f32; 8]; LANES]>::try_from(&rows[at..at + out.len()]) {
+                    let p = Rays8::from_rows(p);
+                    out.copy_from_slice(&match query {
+                        Query::Closest => scene.intersect8_soa_bare(&p),
+                        Query::AnyHit => scene.any_hit8_soa_bare(&p),
+                        Query::Occluded => scene.occluded8_soa(&p).map(occluded_hit),
+                    });
+                    continue;
+                }
+            }
             input.with_few(c * LANES..c * LANES + out.len(), |part| {
                 if let Ok(packet) = <&[Ray; LANES]>::try_from(part) {
                     out.copy_from_slice(&match query {
