@@ -198,7 +198,9 @@ pub fn trace_stream(
 /// Closest hits (or with `any_hit` any hits) of every ray, in parallel,
 /// eight consecutive rays traced together as a packet, given as rows
 /// ([`Rays8::from_rows`]; [`Scene::intersect8_soa_bare`],
-/// [`Scene::any_hit8_soa_bare`]), into hit records.
+/// [`Scene::any_hit8_soa_bare`]), into hit records. Eight whose
+/// directions do not share an octant ([`one_octant`]) go one by one from
+/// their rows, as the packet queries would send them.
 pub fn trace_packets(
     scene: &Scene<Triangles>,
     rows: &[[f32; 8]],
@@ -212,8 +214,9 @@ pub fn trace_packets(
             let mut outs = out.chunks_mut(LANES);
             for packet in rows.chunks(LANES) {
                 let o = outs.next().expect("as many records as rays");
-                if let Ok(packet) = <&[[f32; 8]; LANES]>::try_from(packet) {
-                    let packet = Rays8::from_rows(packet);
+                let whole = <&[[f32; 8]; LANES]>::try_from(packet).ok();
+                if let Some(whole) = whole.filter(|p| one_octant(p)) {
+                    let packet = Rays8::from_rows(whole);
                     let hits = if any_hit {
                         scene.any_hit8_soa_bare(&packet)
                     } else {
@@ -233,6 +236,23 @@ pub fn trace_packets(
                 }
             }
         });
+}
+
+/// Whether the directions of `rows` all lie in one octant (the sign bits
+/// of `dx dy dz` alike): the first thing a packet's rays must share
+/// ([`Rays8::lanes`]). Rays that do not go one by one without being
+/// transposed into a packet first, and back out of it.
+fn one_octant(rows: &[[f32; 8]; LANES]) -> bool {
+    // A sign bit is the same in every row where its AND over the rows is
+    // its OR: no branch a row.
+    let (mut and, mut or) = ([u32::MAX; 3], [0u32; 3]);
+    for r in rows {
+        for a in 0..3 {
+            and[a] &= r[4 + a].to_bits();
+            or[a] |= r[4 + a].to_bits();
+        }
+    }
+    (0..3).all(|a| (and[a] ^ or[a]) >> 31 == 0)
 }
 
 /// Mean nodes visited and primitives tested per ray.
@@ -384,4 +404,31 @@ pub fn run(args: &Args) -> Result<()> {
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Eight rows share an octant when every direction component's sign
+    /// bit is alike, `-0.0` counting as negative (as in `Rays8::lanes`);
+    /// one row off in any axis, or the last, breaks it.
+    #[test]
+    fn one_octant_reads_every_rows_sign_bits() {
+        let row = |i: usize| [i as f32, 0.0, 1.0, 0.0, 1.0 + i as f32, -2.0, -0.0, 9.0];
+        let rows: [[f32; 8]; LANES] = std::array::from_fn(row);
+        assert!(one_octant(&rows));
+        for i in 0..LANES {
+            for a in 4..7 {
+                let mut off = rows;
+                off[i][a] = -off[i][a];
+                assert!(!one_octant(&off), "row {i}, column {a}");
+            }
+        }
+        // Origins, `tmin` and `tmax` do not matter.
+        let mut others = rows;
+        others[3][0] = -5.0;
+        others[5][7] = -1.0;
+        assert!(one_octant(&others));
+    }
 }
