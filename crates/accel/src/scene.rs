@@ -1127,10 +1127,11 @@ impl<P: Primitives> Scene<P> {
     /// over trees of 1 MiB of nodes or more: 1.7–2.4 times on random rays
     /// over meshes far larger than the caches (250,000 triangles and up),
     /// level or slower on smaller ones: on a CPU with AVX2, an 8-wide
-    /// tree of fewer than 256 KiB of nodes (some 30,000 triangles) traces
+    /// tree whose nodes take less than half the core's L2 (256 KiB, some
+    /// 30,000 triangles, on a 512 KiB L2; 512 KiB on a 1 MiB one) traces
     /// such rays one by one instead (random rays 1.03–1.09 times as fast
-    /// on the pig, the dragon, the elephant and small spheres; see
-    /// `bvh::SMALL_TREE_BYTES`). Both were slower on coherent rays
+    /// on the pig, the dragon, the elephant and small spheres on a Zen 3,
+    /// 1.05–1.16 on a Zen 4; see `bvh::small_tree_bytes`). Both were slower on coherent rays
     /// (a camera's, or shadow rays toward one light) over small meshes,
     /// whose branches the one-by-one walk predicts well: over a wide BVH
     /// each run of eight rays that makes a packet ([`Packet8`]) walks the
@@ -1613,10 +1614,9 @@ impl<P: Primitives> Scene<P> {
     }
 
     /// [`Self::stream`] with every ray interleaved with the others (over a
-    /// BVH) or traced alone (over the other structures, and for closest
-    /// hits over an 8-wide BVH of fewer than
-    /// [`crate::bvh::SMALL_TREE_BYTES`] of nodes on a CPU with AVX2, where
-    /// that is faster).
+    /// BVH) or traced alone (over the other structures, and over an 8-wide
+    /// BVH whose nodes take less than half the core's L2 on a CPU with
+    /// AVX2, `bvh::small_tree_bytes`, where that is faster).
     fn stream_each(&self, rays: &[Ray], any_hit: bool) -> Vec<Option<(u32, u32, PrimHit)>> {
         let one_by_one = || {
             rays.iter()
@@ -1635,8 +1635,8 @@ impl<P: Primitives> Scene<P> {
             return one_by_one();
         };
         #[cfg(target_arch = "x86_64")]
-        if let (WideRef::W8(b), Some(_), false) = (wide, Avx2::detect(), any_hit) {
-            if b.node_bytes() < crate::bvh::SMALL_TREE_BYTES {
+        if let (WideRef::W8(b), Some(_)) = (wide, Avx2::detect()) {
+            if b.node_bytes() < crate::bvh::small_tree_bytes() {
                 return one_by_one();
             }
         }

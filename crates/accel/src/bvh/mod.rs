@@ -13,11 +13,13 @@ pub(crate) use build::{max_keep, min_keep};
 pub use build::{BvhBuilder, Clip};
 #[cfg(test)]
 pub(crate) use wide::slab_scalar;
+#[cfg(target_arch = "x86_64")]
+pub(crate) use wide::small_tree_bytes;
 #[cfg(all(test, target_arch = "x86_64"))]
 pub(crate) use wide::{entered_slots, group_slab_entry_scalar, group_slab_scalar, reaching};
 pub use wide::{BoxRay, Bvh4, Bvh8, Node4, Node8, WideBvh, WideNode};
 #[cfg(target_arch = "x86_64")]
-pub(crate) use wide::{GroupEntry, GroupLeaf, GroupRays, GROUP, SMALL_TREE_BYTES};
+pub(crate) use wide::{GroupEntry, GroupLeaf, GroupRays, GROUP};
 
 use crate::packet::{self, Packet8, PacketLeaf, LANES};
 use crate::pages::Pages;

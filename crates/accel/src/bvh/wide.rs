@@ -679,24 +679,76 @@ const STREAM_LANES: [usize; 2] = [2, 12];
 /// 1.07 / 1.03, a 250K one (2 MB) 1.20 / 1.21 (bunny00, 0.66 MB: above).
 const LARGE_TREE_BYTES: usize = 1 << 20;
 
-/// Bytes of nodes below which an 8-wide tree's closest-hit streams trace
-/// the rays they would interleave one after another instead, on a CPU
-/// with AVX2 ([`WideBvh::node_bytes`]; `Scene::stream_each`): the tree
-/// then sits well within the core's L2 with room for leaves, its nodes
-/// come from there without the waits interleaving hides, and the one-ray
-/// walk, compiled in one AVX2 region with the leaf test inlined, takes
-/// less work a ray. `raymesh-ab --stream --workload random --size 512
+/// Bytes of nodes below which an 8-wide tree's streams trace the rays
+/// they would interleave one after another instead, on a CPU with AVX2
+/// ([`WideBvh::node_bytes`]; `Scene::stream_each`): half the core's L2
+/// ([`l2_bytes`]). The tree then sits well within the L2 with room for
+/// leaves, its nodes come from there without the waits interleaving
+/// hides, and the one-ray walk, compiled in one AVX2 region with the
+/// leaf test inlined, takes less work a ray.
+///
+/// Measured on two cores. A Zen 3 (512 KiB of L2: this was 256 KiB for
+/// every CPU then), `raymesh-ab --stream --workload random --size 512
 /// --query closest` (262K rays, pinned, against f5aaeec): the pig (143
 /// KiB of nodes) 1.08, the dragon (178 KiB) 1.09, the elephant (38 KiB)
 /// 1.07, 12K-, 20K- and 30K-triangle spheres (94, 157, 236 KiB) 1.04,
-/// 1.06, 1.03; past it one by one loses: polygon_mesh (295 KiB) 1.00, a
+/// 1.06, 1.03; past it one by one lost: polygon_mesh (295 KiB) 1.00, a
 /// 45K-triangle sphere (357 KiB) 1.00, 60K (472 KiB) 0.97, bunny00 (680
-/// KiB) 0.98, 100K (777 KiB) 0.93. Any-hit streams stay interleaved: one
-/// by one, the meshes gained 1–4% but the spheres lost 1–3%. (`bvh4`'s
-/// one-ray walk, without the AVX2 region, lost 2–3% one by one on the
-/// pig and the dragon.)
+/// KiB) 0.98, 100K (777 KiB) 0.93; any hits, one by one, the meshes
+/// 1.01–1.04, the spheres 0.97–0.99. A Zen 4 (1 MiB of L2; stop 78,
+/// `raymesh-ab --stream --workload random --size 512 --query
+/// closest,any-hit`, interleaved against one by one): the pig 0.86 /
+/// 0.88, a 30K-triangle sphere (236 KiB) 0.89 / 0.90, 60K (472 KiB) 0.95
+/// / 1.00, bunny00 (680 KiB) 0.96 / 1.01, 100K (777 KiB) 1.01 / 1.01, 150K
+/// (1.2 MiB) 1.12 / 1.21, 250K (2 MiB) 1.28 / 1.29. Interleaving starts
+/// to pay past about three quarters of the L2 on both; half leaves a
+/// margin. (`bvh4`'s one-ray walk, without the AVX2 region, lost 2–3%
+/// one by one on the pig and the dragon.)
 #[cfg(target_arch = "x86_64")]
-pub(crate) const SMALL_TREE_BYTES: usize = 1 << 18;
+pub(crate) fn small_tree_bytes() -> usize {
+    l2_bytes() / 2
+}
+
+/// The L2 cache of the CPU's first core in bytes, as Linux reports it
+/// (`/sys/devices/system/cpu/cpu0/cache/index*/`: the level-2 data or
+/// unified cache), read once; 512 KiB where it reports none (another
+/// system, or an odd value), the size the first threshold was measured
+/// on.
+#[cfg(target_arch = "x86_64")]
+fn l2_bytes() -> usize {
+    static L2: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
+    *L2.get_or_init(|| read_l2_bytes().unwrap_or(512 << 10))
+}
+
+#[cfg(target_arch = "x86_64")]
+fn read_l2_bytes() -> Option<usize> {
+    let dir = std::path::Path::new("/sys/devices/system/cpu/cpu0/cache");
+    (0..8).find_map(|i| {
+        let index = dir.join(format!("index{i}"));
+        let read = |name: &str| std::fs::read_to_string(index.join(name)).ok();
+        let kind = read("type")?;
+        if read("level")?.trim() != "2" || kind.trim() == "Instruction" {
+            return None;
+        }
+        parse_cache_size(&read("size")?)
+    })
+}
+
+/// A cache size as Linux writes it (`1024K`, `2M`, or bytes), within 64
+/// KiB and 64 MiB, or `None`.
+#[cfg(any(target_arch = "x86_64", test))]
+fn parse_cache_size(s: &str) -> Option<usize> {
+    let s = s.trim();
+    let (digits, unit) = match s.strip_suffix(['K', 'k']) {
+        Some(d) => (d, 1 << 10),
+        None => match s.strip_suffix(['M', 'm']) {
+            Some(d) => (d, 1 << 20),
+            None => (s, 1),
+        },
+    };
+    let bytes = digits.parse::<usize>().ok()?.checked_mul(unit)?;
+    (64 << 10..=64 << 20).contains(&bytes).then_some(bytes)
+}
 
 /// One ray of a wide stream traversal in flight: its node test, its
 /// interval, the item it visits next, its stack, and its index in the
@@ -770,7 +822,7 @@ impl<const W: usize> WideBvh<W> {
     }
 
     /// The bytes of the tree's nodes (which [`STREAM_LANES`] and
-    /// [`SMALL_TREE_BYTES`] weigh).
+    /// `small_tree_bytes` weigh).
     pub(crate) fn node_bytes(&self) -> usize {
         std::mem::size_of_val(self.nodes.as_slice())
     }
@@ -2307,6 +2359,28 @@ mod tests {
     use super::*;
     use crate::NoStats;
     use proptest::prelude::*;
+
+    /// Linux's cache sizes read as bytes; anything else, or a size no L2
+    /// has, is none (and the walk then assumes 512 KiB).
+    #[test]
+    fn cache_sizes_parse_as_linux_writes_them() {
+        assert_eq!(parse_cache_size("1024K\n"), Some(1 << 20));
+        assert_eq!(parse_cache_size("512K"), Some(512 << 10));
+        assert_eq!(parse_cache_size("2M"), Some(2 << 20));
+        assert_eq!(parse_cache_size("262144"), Some(256 << 10));
+        for bad in [
+            "",
+            "K",
+            "12x",
+            "-1K",
+            "32K",
+            "1G",
+            "128M",
+            "99999999999999999999K",
+        ] {
+            assert_eq!(parse_cache_size(bad), None, "{bad:?}");
+        }
+    }
 
     /// `stats`' expected node and leaf tests are what random lines give:
     /// for lines uniform in space (isotropic, uniform over each

@@ -60,9 +60,10 @@ pub struct Args {
     /// hits, and closest hits of streams with no such run (diffuse
     /// bounces), walk in groups of 32 rays of one octant where the groups
     /// share nodes; without either, interleaving is slower than one by
-    /// one on coherent rays. Over a bvh8 of less than 256 KiB of nodes
-    /// (some 30,000 triangles, with AVX2) closest hits that would be
-    /// interleaved go one by one, which is faster there. BVHs only
+    /// one on coherent rays. Over a bvh8 whose nodes take less than half
+    /// the core's L2 (with AVX2; 256 KiB, some 30,000 triangles, where
+    /// the system does not say) rays that would be interleaved go one by
+    /// one, which is faster there. BVHs only
     /// (bvh-median, bvh-binned, bvh-sweep, bvh4, bvh8); other structures
     /// trace one by one. Same hits, bit for bit.
     #[arg(long, conflicts_with = "packets")]
