@@ -1123,36 +1123,36 @@ impl<P: Primitives> Scene<P> {
     /// interleaved. Over a binary BVH each step is without branches on the
     /// rays' data: about 1.3 times the speed of tracing one by one on
     /// incoherent rays (random directions) on bunny00. Over a wide BVH each
-    /// step prefetches what its ray visits next, twelve rays in flight
-    /// over trees of 1 MiB of nodes or more: 1.7–2.4 times on random rays
-    /// over meshes far larger than the caches (250,000 triangles and up),
-    /// level or slower on smaller ones: on a CPU with AVX2, an 8-wide
-    /// tree whose nodes take less than half the core's L2 (256 KiB, some
-    /// 30,000 triangles, on a 512 KiB L2; 512 KiB on a 1 MiB one) traces
-    /// such rays one by one instead (random rays 1.03–1.09 times as fast
-    /// on the pig, the dragon, the elephant and small spheres on a Zen 3,
-    /// 1.05–1.16 on a Zen 4; see `bvh::small_tree_bytes`). Both were slower on coherent rays
-    /// (a camera's, or shadow rays toward one light) over small meshes,
-    /// whose branches the one-by-one walk predicts well: over a wide BVH
-    /// each run of eight rays that makes a packet ([`Packet8`]) walks the
-    /// tree as one instead, with each ray's one-by-one hit (`raymesh-peers
-    /// bunny00.off ChineseDragon-10kv.off --stream --size 512`, one thread:
-    /// primary rays 8.4 -> 15.5 and 8.1 -> 16.0 Mrays/s, shadow rays 7.0
-    /// -> 11.5 and 5.5 -> 10.1; random and diffuse rays, which make no
-    /// packets, level: the runs are checked first, and a stream with no
-    /// packet goes to the interleaved walk whole), and over a binary BVH
-    /// too since a renderer's streams showed it missing (`--accel
-    /// bvh-binned`, bunny00: primary rays 5.26 -> 12.24, shadow rays 3.77
-    /// -> 9.47; diffuse level). Over an 8-wide BVH on
-    /// a CPU with AVX2, a stream with no packet walks in groups of up to
-    /// 32 rays of one octant instead (`Bvh8::intersect_group`), each
-    /// node fetched and tested once for all the group's rays that enter
-    /// it, unless its rays start scattered (random rays) or its first
-    /// groups share too few nodes, which leave it interleaved: diffuse
-    /// rays 1.16–1.32 times as fast as interleaved on bunny00, the dragon,
-    /// the pig and polygon_mesh, 1.07 on a 600K-triangle sphere
-    /// (`raymesh-peers --stream --workloads diffuse --size 512 --accel
-    /// bvh8`, one thread, against e280670).
+    /// step prefetches what its ray visits next, twelve rays in flight over
+    /// trees of 1 MiB of nodes or more: 1.7–2.4 times on random rays over
+    /// meshes far larger than the caches (250,000 triangles and up), level
+    /// or slower on smaller ones: on a CPU with AVX2, an 8-wide tree whose
+    /// nodes take less than half the core's L2 (256 KiB, some 30,000
+    /// triangles, on a 512 KiB L2; 512 KiB on a 1 MiB one) traces such rays
+    /// one by one instead (random rays 1.03–1.09 times as fast on the pig,
+    /// the dragon, the elephant and small spheres on a Zen 3, 1.05–1.16 on
+    /// a Zen 4; see `bvh::small_tree_bytes`). Both were slower on coherent
+    /// rays (a camera's, or shadow rays toward one light) over small
+    /// meshes, whose branches the one-by-one walk predicts well: over a
+    /// wide BVH each run of eight rays that makes a packet ([`Packet8`])
+    /// walks the tree as one instead, with each ray's one-by-one hit
+    /// (`raymesh-peers bunny00.off ChineseDragon-10kv.off --stream --size
+    /// 512`, one thread: primary rays 8.4 -> 15.5 and 8.1 -> 16.0 Mrays/s,
+    /// shadow rays 7.0 -> 11.5 and 5.5 -> 10.1; random and diffuse rays,
+    /// which make no packets, level: the runs are checked first, and a
+    /// stream with no packet goes to the interleaved walk whole), and over
+    /// a binary BVH too since a renderer's streams showed it missing
+    /// (`--accel bvh-binned`, bunny00: primary rays 5.26 -> 12.24, shadow
+    /// rays 3.77 -> 9.47; diffuse level). Over an 8-wide BVH on a CPU with
+    /// AVX2, a stream with no packet walks in groups of up to 32 rays of
+    /// one octant instead (`Bvh8::intersect_group`), each node fetched and
+    /// tested once for all the group's rays that enter it, unless its rays
+    /// start scattered (random rays) or its first groups share too few
+    /// nodes, which leave it interleaved: diffuse rays 1.16–1.32 times as
+    /// fast as interleaved on bunny00, the dragon, the pig and
+    /// polygon_mesh, 1.07 on a 600K-triangle sphere (`raymesh-peers
+    /// --stream --workloads diffuse --size 512 --accel bvh8`, one thread,
+    /// against e280670).
     /// See `raymesh raycast --stream`. Other structures trace one by one.
     pub fn intersect_stream(&self, rays: &[Ray], out: &mut [Option<Hit>]) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
