@@ -726,8 +726,7 @@ fn read_l2_bytes() -> Option<usize> {
     (0..8).find_map(|i| {
         let index = dir.join(format!("index{i}"));
         let read = |name: &str| std::fs::read_to_string(index.join(name)).ok();
-        let kind = read("type")?;
-        if read("level")?.trim() != "2" || kind.trim() == "Instruction" {
+        if read("level")?.trim() != "2" || read("type")?.trim() == "Instruction" {
             return None;
         }
         parse_cache_size(&read("size")?)
