@@ -270,7 +270,7 @@ mod tests {
     use raymesh_geometry::{intersect_triangle, Vec3};
 
     proptest! {
-        #![proptest_config(ProptestConfig::with_cases(4000))]
+        #![proptest_config(crate::test_util::config(4000))]
         /// The NEON node test and the plain loops give the same bits, on
         /// any boxes (empty slots too) and rays (NaN, infinities, zeros),
         /// of 8-wide nodes and of 4-wide ones (the first four boxes).
@@ -287,7 +287,7 @@ mod tests {
     }
 
     proptest! {
-        #![proptest_config(ProptestConfig::with_cases(4000))]
+        #![proptest_config(crate::test_util::config(4000))]
         /// The NEON triangle block gives what the scalar test gives, lane
         /// by lane: the same hits and the same bits of `t`, `u`, `v`, for a
         /// block anywhere in the rows (in one group or straddling two, from

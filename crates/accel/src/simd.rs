@@ -2106,12 +2106,14 @@ unsafe fn triangles8_loaded(
 mod tests {
     use super::*;
     use crate::bvh::Node;
-    use crate::test_util::{hard_coord, hard_vec3, lanes_match, lattice, node_kernel_matches};
+    use crate::test_util::{
+        bits, hard_coord, hard_vec3, lanes_match, lattice, node_kernel_matches,
+    };
     use proptest::prelude::*;
     use raymesh_geometry::{Aabb, Ray, Vec3};
 
     proptest! {
-        #![proptest_config(ProptestConfig { cases: 2_000, failure_persistence: None, ..ProptestConfig::default() })]
+        #![proptest_config(crate::test_util::config(2000))]
         /// `set_group_rays` (eight lanes at a time in AVX2, the rest one
         /// by one) fills a group's rows with the bits `GroupRays::set`
         /// gives each ray: groups of every length up to 32, rays picked in
@@ -2141,7 +2143,7 @@ mod tests {
                 (0..3)
                     .flat_map(|a| [g.origin[a][k], g.inv_dir[a][k], g.inv_exit[a][k]])
                     .chain([g.tmin[k], g.bound[k]])
-                    .map(f32::to_bits)
+                    .map(crate::test_util::bits)
                     .collect()
             };
             for k in 0..group.len() {
@@ -2181,7 +2183,7 @@ mod tests {
     }
 
     proptest! {
-        #![proptest_config(ProptestConfig::with_cases(4000))]
+        #![proptest_config(crate::test_util::config(4000))]
         /// The AVX kernel and the plain loops give the same bits.
         #[test]
         fn avx_slab_matches_fallback(
@@ -2199,7 +2201,7 @@ mod tests {
     }
 
     proptest! {
-        #![proptest_config(ProptestConfig::with_cases(4000))]
+        #![proptest_config(crate::test_util::config(4000))]
         /// The SSE kernel of 4-wide nodes and the plain loops give the
         /// same bits, on every CPU (SSE is part of x86-64), and so does the
         /// dispatch the AVX2 walks call.
@@ -2216,7 +2218,7 @@ mod tests {
     }
 
     proptest! {
-        #![proptest_config(ProptestConfig::with_cases(4000))]
+        #![proptest_config(crate::test_util::config(4000))]
         /// The AVX reduction gives the fold's greatest active lane, for
         /// every mask (none: `-inf`), on bounds that are not NaN (a packet
         /// walk's never are: its rays are valid, its hits' `t` ordered).
@@ -2238,7 +2240,7 @@ mod tests {
     }
 
     proptest! {
-        #![proptest_config(ProptestConfig::with_cases(2000))]
+        #![proptest_config(crate::test_util::config(2000))]
         /// The group kernel gives each ray of the group the children the
         /// plain loops give it (each ray's one-ray test), and each child
         /// the least entry distance of the rays that enter it, on any
@@ -2278,7 +2280,7 @@ mod tests {
             let (entered, least, slots) = group_slab8_entry(avx, &node, &g, mask);
             let (want_entered, want_least) = crate::bvh::group_slab_entry_scalar(&node, &g, mask);
             prop_assert_eq!(entered, want_entered);
-            prop_assert_eq!(least.map(f32::to_bits), want_least.map(f32::to_bits));
+            prop_assert_eq!(least.map(bits), want_least.map(bits));
             prop_assert_eq!(slots, want_slots);
         }
 
@@ -2300,7 +2302,7 @@ mod tests {
     }
 
     proptest! {
-        #![proptest_config(ProptestConfig::with_cases(4000))]
+        #![proptest_config(crate::test_util::config(4000))]
         /// The pair kernel gives the bits of two scalar slab tests, in
         /// every octant, on any boxes (empty ones too), whatever the count
         /// and index fields hold (their bits read as floats are subnormal,
@@ -2322,13 +2324,13 @@ mod tests {
             let (ma, la, ra) = pair_slab(&pair, &r, bound);
             let (mb, lb, rb) = crate::bvh::pair_slab_scalar(&pair, &r, bound);
             prop_assert_eq!(ma, mb);
-            prop_assert_eq!(la.to_bits(), lb.to_bits());
-            prop_assert_eq!(ra.to_bits(), rb.to_bits());
+            prop_assert_eq!(bits(la), bits(lb));
+            prop_assert_eq!(bits(ra), bits(rb));
         }
     }
 
     proptest! {
-        #![proptest_config(ProptestConfig::with_cases(2000))]
+        #![proptest_config(crate::test_util::config(2000))]
         /// The SSE2 bin truncation gives the plain conversion's bins, and
         /// both give the clamped floor of each lane, NaN in bin 0.
         #[test]
@@ -2438,7 +2440,7 @@ mod tests {
     }
 
     proptest! {
-        #![proptest_config(ProptestConfig::with_cases(4000))]
+        #![proptest_config(crate::test_util::config(4000))]
         /// The AVX triangle block gives what the scalar test gives, lane by
         /// lane: the same hits and the same bits of `t`, `u`, `v`.
         #[test]
@@ -2478,7 +2480,7 @@ mod tests {
     }
 
     proptest! {
-        #![proptest_config(ProptestConfig::with_cases(2000))]
+        #![proptest_config(crate::test_util::config(2000))]
         /// A packet's block test ([`crate::Primitives::intersect_block_lanes`],
         /// the block's rows loaded once for every lane) gives each lane what
         /// the scalar test gives its ray with its own bound, bit for bit,
@@ -2529,7 +2531,7 @@ mod tests {
     }
 
     proptest! {
-        #![proptest_config(ProptestConfig::with_cases(2000))]
+        #![proptest_config(crate::test_util::config(2000))]
         /// A block tested for several rays of a group at once, its rows
         /// loaded once for each axis order among them, gives each ray
         /// asked for, once, what the scalar test gives it with its own

@@ -817,7 +817,7 @@ mod tests {
     use proptest::prelude::*;
 
     proptest! {
-        #![proptest_config(ProptestConfig::with_cases(4000))]
+        #![proptest_config(crate::test_util::config(4000))]
         /// The node test that reads planes by index gives the bits of
         /// `Aabb::slab`, in every octant, on any box (empty ones too) and
         /// whatever the leaf fields hold.

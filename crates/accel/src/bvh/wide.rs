@@ -2676,7 +2676,7 @@ mod tests {
     }
 
     proptest! {
-        #![proptest_config(ProptestConfig::with_cases(4000))]
+        #![proptest_config(crate::test_util::config(4000))]
         /// `enter` pushes a node's entered children, all but the one it
         /// returns, in the order of a stable sort of the slots by entry,
         /// farthest first (so that on a tie the later slot is nearer), and
@@ -3288,7 +3288,7 @@ mod tests {
     }
 
     proptest! {
-        #![proptest_config(ProptestConfig::with_cases(4000))]
+        #![proptest_config(crate::test_util::config(4000))]
         /// The node test's maxima side by side give the nested maxima's
         /// entries and masks wherever y's reciprocals are finite, and
         /// never fewer boxes elsewhere; on any boxes without NaN (empty
