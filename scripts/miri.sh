@@ -9,7 +9,8 @@
 #   scripts/miri.sh neon:: --target aarch64-unknown-linux-gnu
 #
 # The second form interprets the NEON kernels' tests as aarch64 code, on
-# any machine.
+# any machine. `--test NAME` runs an integration test's instead of the
+# unit tests (RAYMESH_PROPTEST_CASES=1 keeps the agreement tests short).
 #
 # Not part of CI: Miri interprets every operation, and the 15 tests of
 # `simd::` take about 20 minutes on one core even with the property tests
@@ -42,4 +43,9 @@ export MIRIFLAGS="-Zmiri-disable-isolation -Zmiri-tree-borrows -Zmiri-permissive
 # A target folder of its own: Miri's builds are not the native ones.
 export CARGO_TARGET_DIR="${CARGO_TARGET_DIR:-target/miri}"
 
-cargo +nightly miri test -p raymesh-accel --lib "$@" "$filter"
+# The unit tests, unless the arguments name other targets (`--test agree`).
+targets=(--lib)
+if [[ " $* " == *" --test"* ]]; then
+    targets=()
+fi
+cargo +nightly miri test -p raymesh-accel "${targets[@]}" "$@" "$filter"

@@ -211,16 +211,8 @@ fn rays_for(tris: &[[Vec3; 3]], origins: &[Vec3], dirs: &[Vec3]) -> Vec<Ray> {
     rays
 }
 
-/// Cases per property; raise with `RAYMESH_PROPTEST_CASES` for a long run.
-fn cases() -> u32 {
-    std::env::var("RAYMESH_PROPTEST_CASES")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(300)
-}
-
 proptest! {
-    #![proptest_config(ProptestConfig { cases: cases(), failure_persistence: None, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig { cases: common::cases(300), failure_persistence: None, ..ProptestConfig::default() })]
 
     #[test]
     fn random_triangle_soups(tris in proptest::collection::vec((point(), point(), point()), 0..80),

@@ -195,7 +195,7 @@ fn soup_and_targets(tris: Vec<(Vec3, Vec3, Vec3)>) -> (Vec<[Vec3; 3]>, Vec<Vec3>
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 64, failure_persistence: None, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig { cases: common::cases(64), failure_persistence: None, ..ProptestConfig::default() })]
 
     #[test]
     fn random_soups(tris in proptest::collection::vec((point(), point(), point()), 0..120),

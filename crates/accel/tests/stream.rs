@@ -159,7 +159,7 @@ fn mixed_rays(m: &TriangleMesh, seed: u64) -> Vec<Ray> {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 64, failure_persistence: None, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig { cases: common::cases(64), failure_persistence: None, ..ProptestConfig::default() })]
 
     #[test]
     fn coherent_runs_in_streams(tris in proptest::collection::vec((point(), point(), point()), 1..150),

@@ -6,6 +6,17 @@ use raymesh_accel::{
 };
 use std::path::PathBuf;
 
+/// Cases per property: `default`, or `RAYMESH_PROPTEST_CASES` where set
+/// (higher for a long run; 1 under Miri, `scripts/miri.sh`, which
+/// interprets every build and ray a case makes).
+#[allow(dead_code)] // not every test file has properties
+pub fn cases(default: u32) -> u32 {
+    std::env::var("RAYMESH_PROPTEST_CASES")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(default)
+}
+
 /// A mesh from the repository's `tests/data`, fan-triangulated.
 pub fn load(name: &str) -> TriangleMesh {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
