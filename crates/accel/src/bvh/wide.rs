@@ -2370,6 +2370,10 @@ mod tests {
         assert_eq!(parse_cache_size("512K"), Some(512 << 10));
         assert_eq!(parse_cache_size("2M"), Some(2 << 20));
         assert_eq!(parse_cache_size("262144"), Some(256 << 10));
+        // The range's ends: 64 KiB and 8 MiB are taken, past them not.
+        assert_eq!(parse_cache_size("64K"), Some(64 << 10));
+        assert_eq!(parse_cache_size("8M"), Some(8 << 20));
+        assert_eq!(parse_cache_size("8193K"), None);
         for bad in [
             "",
             "K",
