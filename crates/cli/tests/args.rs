@@ -123,3 +123,45 @@ fn bench_hands_peers_to_raymesh_peers() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Every command that writes a file takes its path as `-o`, `--out` or
+/// `--output`, whichever the command's help names first: `rays` and
+/// `raycast` said `--out` and the others `--output`, and each refused the
+/// other's spelling.
+#[test]
+fn output_flags_take_either_spelling() {
+    let mesh = data("tetrahedron.off");
+    let dir = common::tmpdir("output-flags");
+    for (i, flag) in ["-o", "--out", "--output"].into_iter().enumerate() {
+        let rays = dir.join(format!("rays{i}.npy"));
+        let hits = dir.join(format!("hits{i}.npy"));
+        let sub = dir.join(format!("sub{i}.obj"));
+        let gen = dir.join(format!("gen{i}.ply"));
+        let png = dir.join(format!("img{i}.png"));
+        let m = mesh.to_str().unwrap();
+        for (args, file) in [
+            (
+                vec!["rays", m, "--workload", "random", "--size", "4", flag],
+                &rays,
+            ),
+            (
+                vec!["raycast", m, "--rays", rays.to_str().unwrap(), flag],
+                &hits,
+            ),
+            (vec!["subdivide", m, "--levels", "1", flag], &sub),
+            (vec!["generate", "sphere", "--triangles", "100", flag], &gen),
+            (
+                vec!["render", m, "--width", "8", "--height", "8", flag],
+                &png,
+            ),
+        ] {
+            common::run_ok(raymesh().args(&args).arg(file));
+            assert!(
+                std::fs::metadata(file).is_ok_and(|m| m.len() > 0),
+                "{} {flag}: no {}",
+                args[0],
+                file.display()
+            );
+        }
+    }
+}

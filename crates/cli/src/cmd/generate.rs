@@ -30,7 +30,7 @@ pub struct Args {
     #[arg(value_enum)]
     pub kind: Kind,
     /// Output mesh (.ply is binary; .obj and .off also work). Overwritten if it exists.
-    #[arg(short = 'o', long = "output")]
+    #[arg(short = 'o', long = "output", visible_alias = "out")]
     pub output: PathBuf,
     /// Triangles (at least; terrain and sphere round up to whole rows). For
     /// teapot-in-stadium: the teapot's, when no --teapot file is given (a sphere).

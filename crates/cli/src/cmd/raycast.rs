@@ -20,7 +20,7 @@ pub struct Args {
     #[arg(long)]
     pub rays: PathBuf,
     /// Write hits here: (N,) records t <f4, prim <i4, u <f4, v <f4; a miss is t = inf, prim = -1.
-    #[arg(long, short = 'o')]
+    #[arg(long, short = 'o', visible_alias = "output")]
     pub out: Option<PathBuf>,
     /// Acceleration structure: brute, aabb, bvh-median, bvh-binned, bvh-sweep, bvh4, bvh8, bvh (our fastest: bvh8), grid, kdtree.
     #[arg(long, default_value = "bvh")]

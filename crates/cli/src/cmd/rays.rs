@@ -27,7 +27,7 @@ pub struct Args {
     #[arg(long, allow_hyphen_values = true)]
     pub frame: Option<String>,
     /// Output .npy file (overwritten if it exists).
-    #[arg(long, short = 'o')]
+    #[arg(long, short = 'o', visible_alias = "output")]
     pub out: PathBuf,
 }
 

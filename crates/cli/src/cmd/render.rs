@@ -20,7 +20,7 @@ pub struct Args {
     pub input: Option<PathBuf>,
     /// Output PNG. Without it the image goes to raymesh.png (demo) or NAME.png,
     /// and an existing file there is never overwritten: a free name is chosen.
-    #[arg(short = 'o', long = "output")]
+    #[arg(short = 'o', long = "output", visible_alias = "out")]
     pub output: Option<PathBuf>,
     /// Acceleration structure (overrides the scene's).
     #[arg(long)]

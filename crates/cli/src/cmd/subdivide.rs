@@ -23,7 +23,7 @@ pub struct Args {
     /// Input mesh (.obj, .off, .ply, .stl).
     pub file: PathBuf,
     /// Output mesh (.obj, .off or .ply; PLY is binary). Overwritten if it exists.
-    #[arg(short = 'o', long = "output")]
+    #[arg(short = 'o', long = "output", visible_alias = "out")]
     pub output: PathBuf,
     /// Subdivision scheme.
     #[arg(long, value_enum, default_value = "loop")]
