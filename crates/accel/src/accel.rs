@@ -152,8 +152,8 @@ pub struct BuildConfig {
     /// for its SIMD leaves, so that a leaf of up to a block costs one
     /// test. `None`: a `Scene` over primitives whose leaves it tests as
     /// blocks (triangles) picks its SIMD block width for the binned and
-    /// sweep BVHs, and 2 for the k-d tree (whose leaves gather their
-    /// triangles into blocks, a cost per triangle); everything else counts
+    /// sweep BVHs and the k-d tree (whose leaves it stores as runs of
+    /// rows, a triangle copied into each leaf it reaches); everything else counts
     /// one by one, including the binary tree a wide BVH is collapsed from
     /// (the collapse weighs blocks itself, and a finer tree gives it more
     /// to choose from).
@@ -387,13 +387,16 @@ impl Accel {
         s
     }
 
-    /// A BVH's primitive permutation (leaf slot → primitive), which an
-    /// owner may store its primitives by; `None` for other structures.
+    /// A BVH's primitive permutation (leaf slot → primitive), or a k-d
+    /// tree's references leaf after leaf (a primitive in several leaves
+    /// several times), which an owner may store its primitives by; `None`
+    /// for other structures, and for a k-d tree whose order was taken.
     pub(crate) fn leaf_order(&self) -> Option<&[u32]> {
         match self {
             Self::Bvh(b, _) => Some(b.prim_ids()),
             Self::Bvh4(b) => Some(b.prim_ids()),
             Self::Bvh8(b) => Some(b.prim_ids()),
+            Self::KdTree(k) => k.leaf_order(),
             _ => None,
         }
     }
@@ -405,15 +408,16 @@ impl Accel {
             Self::Bvh(b, _) => Some(b.take_prim_ids()),
             Self::Bvh4(b) => Some(b.take_prim_ids()),
             Self::Bvh8(b) => Some(b.take_prim_ids()),
+            Self::KdTree(k) => Some(k.take_leaf_order()),
             _ => None,
         }
     }
 
     /// For the structures whose leaves are lists of primitive indices
-    /// (the k-d tree, the grid): calls `list` with each list of candidate
-    /// primitives front to back, as far as the bound it returns lets the
-    /// traversal go, and returns `true`. Calls nothing and returns `false`
-    /// for the others.
+    /// (the k-d tree, unless its leaves name slots, and the grid): calls
+    /// `list` with each list of candidate primitives front to back, as
+    /// far as the bound it returns lets the traversal go, and returns
+    /// `true`. Calls nothing and returns `false` for the others.
     #[inline]
     pub(crate) fn traverse_lists<C: RayCounter>(
         &self,
@@ -423,6 +427,7 @@ impl Accel {
     ) -> bool {
         match self {
             Self::Grid(g) if ray.is_valid() => g.traverse_lists(ray, counter, list),
+            Self::KdTree(k) if k.names_slots() => return false,
             Self::KdTree(k) if ray.is_valid() => k.traverse_lists(ray, counter, list),
             Self::Grid(_) | Self::KdTree(_) => {}
             _ => return false,

@@ -5,7 +5,8 @@
 //! sides (Wald & Havran's split clipping, after Havran's "perfect
 //! splits"), and traversed front to back (pbrt-v4's `KdTreeAggregate`).
 
-use crate::{each_id, AccelStats, BuildConfig, Clip, Leaf, RayCounter};
+use crate::bvh::each_prim;
+use crate::{AccelStats, BuildConfig, Clip, Leaf, RayCounter};
 use raymesh_geometry::{cull_bound, Aabb, Ray, Vec3, Vec3A};
 use rayon::prelude::*;
 use std::hint::select_unpredictable;
@@ -99,7 +100,14 @@ const NO_NODE: usize = usize::MAX;
 pub struct KdTree {
     bounds: Aabb,
     nodes: Vec<KdNode>,
+    /// The leaves' references, leaf after leaf: a leaf's primitives are
+    /// `prims[start..start + count]`. Empty once an owner has stored its
+    /// primitives in this order, a reference per slot
+    /// ([`Self::take_leaf_order`]): a leaf then names its slots
+    /// `start..start + count` directly (`slots`).
     prims: Vec<u32>,
+    /// Whether the order was taken and leaves name slots.
+    slots: bool,
 }
 
 /// Nodes with at least this many primitive references build their two
@@ -279,6 +287,7 @@ impl KdTree {
             bounds,
             nodes: out.nodes,
             prims: out.prims,
+            slots: false,
         }
     }
 
@@ -328,19 +337,67 @@ impl KdTree {
 
     #[inline]
     pub(crate) fn traverse<C: RayCounter>(&self, ray: &Ray, counter: &mut C, leaf: &mut impl Leaf) {
-        self.traverse_lists(ray, counter, &mut each_id(ray, leaf));
+        self.traverse_ranges(ray, counter, &mut each_prim(&self.prims, ray, leaf));
+    }
+
+    /// The leaves' references in leaf order, for an owner to store its
+    /// primitives by (a primitive in several leaves several times), so
+    /// that each leaf's primitives lie together and are tested as blocks
+    /// of consecutive slots, not gathered by index. `None` once taken.
+    pub(crate) fn leaf_order(&self) -> Option<&[u32]> {
+        (!self.prims.is_empty()).then_some(&self.prims[..])
+    }
+
+    /// Hands over [`Self::leaf_order`] once the owner has stored its
+    /// primitives by it: from then on a leaf names its slots
+    /// ([`Self::traverse_ranges`]), and lists name slots too.
+    pub(crate) fn take_leaf_order(&mut self) -> Vec<u32> {
+        self.slots = true;
+        std::mem::take(&mut self.prims)
+    }
+
+    /// Whether the leaves name slots ([`Self::take_leaf_order`]): then
+    /// they have no lists ([`Self::traverse_lists`]).
+    pub(crate) fn names_slots(&self) -> bool {
+        self.slots
     }
 
     /// Front-to-back traversal calling `list(ids)` with each nonempty
     /// leaf's primitives; it returns the ray's new upper bound (below
     /// `tmin` stops), so that a caller can test a leaf's primitives
-    /// together ([`crate::Primitives::intersect_ids`]).
+    /// together ([`crate::Primitives::intersect_ids`]). For a tree whose
+    /// leaves name primitives, not slots ([`Self::names_slots`]).
+    ///
+    /// Kept as small as this: the walks of the grid's and the k-d tree's
+    /// lists share one AVX2 function (`Scene::lists_avx2`), near the size
+    /// past which LLVM no longer inlines their leaf test into it (a loop
+    /// here that made lists of slots for the other trees took it past:
+    /// every intrinsic of the kernel a call; `scripts/check-kernels-inlined.sh`).
     #[inline]
     pub(crate) fn traverse_lists<C: RayCounter>(
         &self,
         ray: &Ray,
         counter: &mut C,
         list: &mut impl FnMut(&[u32]) -> f32,
+    ) {
+        debug_assert!(!self.slots, "the leaves name slots: no lists");
+        let prims = &self.prims;
+        self.traverse_ranges(ray, counter, &mut |start, count| {
+            list(&prims[start as usize..(start + count) as usize])
+        });
+    }
+
+    /// Front-to-back traversal calling `range(start, count)` with each
+    /// nonempty leaf: its references `start..start + count` in
+    /// [`Self::leaf_order`] (its slots once the owner stores its
+    /// primitives so). `range` returns the ray's new upper bound (below
+    /// `tmin` stops).
+    #[inline]
+    pub(crate) fn traverse_ranges<C: RayCounter>(
+        &self,
+        ray: &Ray,
+        counter: &mut C,
+        range: &mut impl FnMut(u32, u32) -> f32,
     ) {
         if self.nodes.is_empty() {
             return;
@@ -401,13 +458,12 @@ impl KdTree {
                     }
                     continue;
                 }
-                let start = n.a as usize;
-                let ids = &self.prims[start..start + n.upper() as usize];
-                if !ids.is_empty() {
-                    for _ in ids {
+                let count = n.upper();
+                if count != 0 {
+                    for _ in 0..count {
                         counter.prim();
                     }
-                    tmax = list(ids);
+                    tmax = range(n.a, count);
                     if tmax < ray.tmin() {
                         return;
                     }
@@ -835,5 +891,73 @@ mod tests {
             named[p as usize] = true;
         }
         assert!(named.iter().all(|&n| n), "a primitive in no leaf");
+    }
+
+    /// Once its leaf order is taken, the tree walks the same leaves in the
+    /// same order, naming slots: each leaf's slots, read through the order
+    /// taken, are the primitives the tree named before, in
+    /// [`KdTree::traverse_ranges`] and in [`KdTree::traverse`] (stopping
+    /// where the bound falls below `tmin`), and they are the lists
+    /// [`KdTree::traverse_lists`] gave.
+    #[test]
+    fn slots_name_what_the_order_named() {
+        let b = crate::test_util::clustered_boxes(3_000);
+        let config = BuildConfig {
+            leaf_block: Some(8),
+            ..BuildConfig::default()
+        };
+        let named = KdTree::build(&b, &config);
+        let mut slots = named.clone();
+        let order = slots.take_leaf_order();
+        assert_eq!(order, named.prims);
+        assert!(slots.names_slots() && !named.names_slots());
+        assert!(slots.leaf_order().is_none() && named.leaf_order().is_some());
+        assert!(
+            order.len() > b.len(),
+            "no primitive in two leaves: the test would not see slots and ids differ"
+        );
+        let mut next = crate::test_util::xorshift(7);
+        let mut reached = 0;
+        for k in 0..2_000 {
+            let p = |f: &mut dyn FnMut() -> f32| Vec3::new(f(), f(), f());
+            // From anywhere around the clusters toward one of the boxes.
+            let o = p(&mut next) * 22.0 - Vec3::ONE;
+            let d = b[(next() * (b.len() - 1) as f32) as usize].centroid() - o;
+            let ray = Ray::new(o, d, 0.0, f32::INFINITY);
+            // Every fifth ray stops after its third primitive.
+            let stop_after = if k % 5 == 0 { 3 } else { usize::MAX };
+            let ranges = |t: &KdTree| {
+                let mut out = vec![];
+                t.traverse_ranges(&ray, &mut crate::NoStats, &mut |s, n| {
+                    out.extend((s..s + n).map(|i| order[i as usize]));
+                    ray.tmax()
+                });
+                out
+            };
+            let each = |t: &KdTree| {
+                let mut out = vec![];
+                t.traverse(&ray, &mut crate::NoStats, &mut |i| {
+                    out.push(i);
+                    if out.len() >= stop_after {
+                        f32::NEG_INFINITY
+                    } else {
+                        ray.tmax()
+                    }
+                });
+                out
+            };
+            let mut lists = vec![];
+            named.traverse_lists(&ray, &mut crate::NoStats, &mut |ids| {
+                lists.extend_from_slice(ids);
+                ray.tmax()
+            });
+            let leaves = ranges(&named);
+            assert_eq!(leaves, ranges(&slots), "ray {k}: leaves");
+            assert_eq!(leaves, lists, "ray {k}: lists");
+            let by_slot: Vec<u32> = each(&slots).iter().map(|&i| order[i as usize]).collect();
+            assert_eq!(each(&named), by_slot, "ray {k}: one by one");
+            reached += usize::from(!leaves.is_empty());
+        }
+        assert!(reached > 1_500, "{reached} rays reached a leaf");
     }
 }

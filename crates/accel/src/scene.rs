@@ -184,7 +184,10 @@ impl<P: Primitives> Scene<P> {
         let mut prims = prims;
         let mut leaf_order = false;
         let mut original = None;
-        if let Some(order) = accel.leaf_order() {
+        // A k-d tree's order repeats the primitives its planes cut: worth
+        // the copies where a leaf's primitives are tested together.
+        let by_leaves = !matches!(accel, Accel::KdTree(_)) || P::BLOCK_TEST;
+        if let Some(order) = accel.leaf_order().filter(|_| by_leaves) {
             if prims.reorder(order) {
                 leaf_order = true;
                 // Taken from the structure either way: primitives that
@@ -251,6 +254,16 @@ impl<P: Primitives> Scene<P> {
             Accel::Bvh(b, _) => Some(WideRef::W2(b)),
             Accel::Bvh4(b) => Some(WideRef::W4(b)),
             Accel::Bvh8(b) => Some(WideRef::W8(b)),
+            _ => None,
+        }
+    }
+
+    /// The k-d tree, when the primitives are stored in its leaf order
+    /// ([`KdTree::leaf_order`]): then a leaf is a run of consecutive
+    /// slots, tested a block at a time as a BVH's leaves are.
+    fn kd_slots(&self) -> Option<&KdTree> {
+        match &self.accel {
+            Accel::KdTree(k) if k.names_slots() => Some(k),
             _ => None,
         }
     }
@@ -409,6 +422,13 @@ impl<P: Primitives> Scene<P> {
                 self.leaf_closest(ray, first, count, &mut tmax, &mut best);
                 tmax
             });
+        } else if let Some(kd) = self.kd_slots() {
+            if ray.is_valid() {
+                kd.traverse_ranges(ray, counter, &mut |first, count| {
+                    self.leaf_closest(ray, first, count, &mut tmax, &mut best);
+                    tmax
+                });
+            }
         } else if !self.accel.traverse_lists(ray, counter, &mut |ids| {
             self.list_closest(ray, ids, &mut tmax, &mut best);
             tmax
@@ -522,6 +542,9 @@ impl<P: Primitives> Scene<P> {
         if !ray.is_valid() {
             return PackedHit::NONE;
         }
+        if let Some(kd) = self.kd_slots() {
+            return self.kd_blocks_avx2::<ANY, C>(kd, avx, ray, counter);
+        }
         // The region around one walk (a macro: the walks' `traverse_lists`
         // are methods of different types).
         macro_rules! region {
@@ -554,6 +577,42 @@ impl<P: Primitives> Scene<P> {
             _ if ANY => self.any_general(ray, counter),
             _ => self.closest_general(ray, counter),
         }
+    }
+
+    /// [`Self::lists_avx2`] over a k-d tree whose leaves are runs of slots
+    /// ([`Self::kd_slots`]): the walk in an AVX2 region, each leaf tested
+    /// a block of consecutive slots at a time with the block kernel
+    /// ([`Primitives::intersect_block_pre`]), as a BVH's leaves are, with
+    /// no gather by index. A function of its own, as each walk's region
+    /// is (see [`Self::lists_avx2`]). The ray must be valid.
+    #[inline(never)]
+    fn kd_blocks_avx2<const ANY: bool, C: RayCounter>(
+        &self,
+        kd: &KdTree,
+        avx: Avx2,
+        ray: &Ray,
+        counter: &mut C,
+    ) -> PackedHit {
+        avx_run!(avx, || {
+            let pre = self.prims.block_ray(ray);
+            let test = |s, n, t| self.prims.intersect_block_pre(avx, &pre, s, n, ray, t);
+            let mut best = None;
+            let mut tmax = ray.tmax();
+            kd.traverse_ranges(ray, counter, &mut |first, count| {
+                if ANY {
+                    best = self.leaf_any_by(first, count, ray.tmax(), test);
+                    if best.is_some() {
+                        f32::NEG_INFINITY
+                    } else {
+                        ray.tmax()
+                    }
+                } else {
+                    self.leaf_closest_by(first, count, &mut tmax, &mut best, test);
+                    tmax
+                }
+            });
+            PackedHit::found(best)
+        })
     }
 
     /// [`Self::closest_avx2`] for any-hit queries, for
@@ -695,8 +754,8 @@ impl<P: Primitives> Scene<P> {
         None
     }
 
-    /// [`Self::leaf_closest`] for a list of primitives (a k-d tree's leaf,
-    /// a grid cell's untested primitives): a block of [`BLOCK`] at a time
+    /// [`Self::leaf_closest`] for a list of primitives (a grid cell's
+    /// untested primitives, a k-d tree's leaf over primitives it names): a block of [`BLOCK`] at a time
     /// ([`Primitives::intersect_ids`]), each hit offered in list order.
     #[inline(always)]
     fn list_closest(
@@ -847,6 +906,17 @@ impl<P: Primitives> Scene<P> {
                 }
             };
             wide.traverse_blocks_unordered(ray, counter, &mut block);
+        } else if let Some(kd) = self.kd_slots() {
+            if ray.is_valid() {
+                kd.traverse_ranges(ray, counter, &mut |first, count| {
+                    found = self.leaf_any(ray, first, count);
+                    if found.is_some() {
+                        f32::NEG_INFINITY
+                    } else {
+                        ray.tmax()
+                    }
+                });
+            }
         } else if !self.accel.traverse_lists(ray, counter, &mut |ids| {
             found = self.list_any(ray, ids);
             if found.is_some() {
@@ -1808,11 +1878,11 @@ fn bare_at(index: u32, h: PrimHit) -> BareHit {
 /// `config` with [`BuildConfig::leaf_block`] resolved, over primitives
 /// whose leaves are tested as blocks: the SIMD block width for the
 /// SAH-built binary BVHs (a leaf of up to a block costs one test), and
-/// [`KD_GATHER_BLOCK`] for the k-d tree; as given otherwise.
+/// [`KD_LEAF_BLOCK`] for the k-d tree; as given otherwise.
 fn leaf_blocks<P: Primitives>(kind: AccelKind, config: &BuildConfig) -> BuildConfig {
     let block = match kind {
         AccelKind::BvhBinned | AccelKind::BvhSweep => Some(BLOCK),
-        AccelKind::KdTree => Some(KD_GATHER_BLOCK),
+        AccelKind::KdTree => Some(KD_LEAF_BLOCK),
         _ => None,
     };
     BuildConfig {
@@ -1821,13 +1891,23 @@ fn leaf_blocks<P: Primitives>(kind: AccelKind, config: &BuildConfig) -> BuildCon
     }
 }
 
-/// Triangles a k-d tree leaf tests for the cost of one, in its SAH: its
-/// triangles are gathered into SIMD blocks ([`Primitives::intersect_ids`]),
-/// so a block's test is shared but each triangle's gather is not. Of 1, 2,
-/// 4 and 8 (`raycast --accel kdtree --stats`, bunny00 and the dragon), 2
-/// traced as fast as 1 or faster on every workload (diffuse +6%) with
-/// 29% fewer bytes and a build a third shorter; 4 lost 11% on primary rays.
-const KD_GATHER_BLOCK: usize = 2;
+/// Triangles a k-d tree leaf tests for the cost of one, in its SAH: a
+/// whole block. The scene stores the triangles in the tree's leaf order
+/// (a triangle once in each leaf it reaches, [`KdTree::leaf_order`]), so
+/// a leaf's triangles are a run of rows, tested [`BLOCK`] at a time by
+/// the block kernel as a BVH's leaves are. (They were gathered by index
+/// into blocks, a cost per triangle, and 2 was the best count then.)
+/// `raymesh-ab MESH --accel kdtree --workload W --size 256 --rounds 2
+/// --chunk 16384 --set leaf_block=B` against the gathering build, pinned,
+/// medians of pairs, closest / any-hit: bunny00's random rays with 2 in
+/// the new layout 1.07 / 1.09, with 4 1.19 / 1.18, with 8 1.29 / 1.25;
+/// with 8 on the four meshes of `../shared/meshes` with more than 10,000
+/// triangles, all four workloads, 1.17–1.36 / 1.22–1.41 and, in a second
+/// run, 1.16–1.31 / 1.20–1.39, the same hits (occlusion too);
+/// a traversal cost of 6 instead of 3 beside it gained nothing (0.97–1.46
+/// / 1.06–1.38 on the same 16). The copies cost memory: bunny00 60.9 →
+/// 77.1 bytes a triangle (124 with 2), its build 89 → 57 ms.
+const KD_LEAF_BLOCK: usize = BLOCK;
 
 /// The fewest rays a node visit must take on average, over an occlusion
 /// stream's first groups ([`Scene::occluded_stream`]), for its other rays
@@ -1941,8 +2021,9 @@ impl Scene<Triangles> {
     /// into wide nodes (10 MB at most beside it, two short phases that
     /// then share the threads); larger meshes gather after the collapse.
     /// The other structures (the k-d tree, the grid) are built from the
-    /// mesh's boxes too, and the rows gathered in the mesh's order after
-    /// the build (the k-d builder's references, which carry boxes, are
+    /// mesh's boxes too, and the rows gathered after the build, in the
+    /// k-d tree's leaf order (a triangle once in each leaf it reaches) or
+    /// the mesh's (the k-d builder's references, which carry boxes, are
     /// gone by then: a 1M-triangle terrain's k-d build peaked at 164 MiB
     /// instead of 200 in `raymesh scale`). The build time counts the
     /// gathering.
@@ -1964,14 +2045,27 @@ impl Scene<Triangles> {
                 // The other structures built first, from the mesh's own
                 // boxes, then the rows gathered: they never coexist with
                 // the k-d builder's references.
-                let (accel, bounds) = build_not_bvh(kind, mesh.len(), &bounds_of, &clip, config);
-                let prims = Triangles::from_mesh(mesh);
+                let (mut accel, bounds) =
+                    build_not_bvh(kind, mesh.len(), &bounds_of, &clip, config);
+                // A k-d tree's leaves become runs of rows, in its order
+                // (a triangle its planes cut once in each leaf it reaches).
+                let prims = match accel.leaf_order() {
+                    Some(order) => {
+                        let prims = Triangles::from_mesh_in_order(mesh, order);
+                        accel.take_leaf_order();
+                        prims
+                    }
+                    None => Triangles::from_mesh(mesh),
+                };
                 (accel, prims, bounds)
             }
         };
-        // A BVH's leaves are blocks of the rows; the others' lists name
-        // the triangles by index.
-        let leaf_order = accel.leaf_order().is_some();
+        // A BVH's and a k-d tree's leaves are blocks of the rows; the
+        // grid's lists name the triangles by index.
+        let leaf_order = matches!(
+            accel,
+            Accel::Bvh(..) | Accel::Bvh4(_) | Accel::Bvh8(_) | Accel::KdTree(_)
+        );
         Self {
             prims,
             accel,
@@ -2125,6 +2219,8 @@ impl WideRef<'_> {
 mod tests {
     use super::*;
     use crate::test_util::xorshift;
+    use crate::Spheres;
+    use raymesh_geometry::Sphere;
 
     /// A packed walk result gives back the primitive and hit it was made
     /// from, bit for bit, over the values a hit may hold (any index, a
@@ -2199,6 +2295,49 @@ mod tests {
         rays.push(Ray::infinite(Vec3::NAN, Vec3::X));
         rays.push(Ray::infinite(Vec3::ZERO, Vec3::ZERO));
         (TriangleMesh::new(positions, triangles), rays)
+    }
+
+    /// A k-d tree over triangles stores them in its leaf order, a
+    /// triangle once in each leaf that holds it (so its leaves are tested
+    /// as blocks of rows), whether the scene is made from the mesh or from
+    /// rows given whole, and the hits are brute force's, with the indices
+    /// the user gave; over an indexed mesh or spheres, which have no block
+    /// test, the tree keeps its lists instead of copies.
+    #[test]
+    fn kd_trees_over_triangles_test_their_leaves_as_blocks() {
+        let (m, rays) = cloud_and_rays();
+        let brute = Scene::build(m.clone(), AccelKind::Brute);
+        let check = |kd: &dyn Fn() -> bool, len: usize, hit: &dyn Fn(&Ray) -> Option<BareHit>| {
+            assert!(kd(), "the k-d tree's leaves are not runs of slots");
+            assert!(len > m.len(), "{len} stored for {} triangles", m.len());
+            for r in &rays {
+                let (want, got) = (brute.intersect_bare(r), hit(r));
+                assert_eq!(
+                    want.map(|h| (h.prim, h.t.to_bits())),
+                    got.map(|h| (h.prim, h.t.to_bits()))
+                );
+            }
+        };
+        let a = Scene::from_mesh(&m, AccelKind::KdTree);
+        check(&|| a.kd_slots().is_some(), a.prims().len(), &|r| {
+            a.intersect_bare(r)
+        });
+        let b = Scene::build(Triangles::from_mesh(&m), AccelKind::KdTree);
+        check(&|| b.kd_slots().is_some(), b.prims().len(), &|r| {
+            b.intersect_bare(r)
+        });
+        // An indexed mesh and spheres: no block test.
+        let c = Scene::build(m.clone(), AccelKind::KdTree);
+        assert!(c.kd_slots().is_none());
+        assert_eq!(c.prims().len(), m.len());
+        let spheres = Spheres(
+            (0..m.len() as u32)
+                .map(|i| Sphere::new(m.corners(i)[0], 0.01))
+                .collect(),
+        );
+        let d = Scene::build(spheres, AccelKind::KdTree);
+        assert!(d.kd_slots().is_none());
+        assert_eq!(d.prims().len(), m.len());
     }
 
     /// Occlusion streams, and streams in groups for any and closest hits,
