@@ -119,7 +119,8 @@ pub struct Scene<P> {
     accel: Accel,
     bounds: Aabb,
     build_ms: f64,
-    /// Whether the primitives are stored in the BVH's leaf order.
+    /// Whether the primitives are stored in the structure's leaf order
+    /// (a BVH's, or a k-d tree's: [`Accel::leaf_order`]).
     leaf_order: bool,
     /// When they are, and their type does not keep the index the user
     /// gave each ([`Primitives::STORES_INDEX`]): that index for each
@@ -2060,12 +2061,12 @@ impl Scene<Triangles> {
                 (accel, prims, bounds)
             }
         };
-        // A BVH's and a k-d tree's leaves are blocks of the rows; the
-        // grid's lists name the triangles by index.
-        let leaf_order = matches!(
-            accel,
-            Accel::Bvh(..) | Accel::Bvh4(_) | Accel::Bvh8(_) | Accel::KdTree(_)
-        );
+        // A BVH's leaves are blocks of the rows, and a k-d tree's where
+        // it gave its order; the grid's lists name the triangles by index.
+        let leaf_order = match &accel {
+            Accel::KdTree(k) => k.names_slots(),
+            a => a.leaf_order().is_some(),
+        };
         Self {
             prims,
             accel,
