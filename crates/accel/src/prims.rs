@@ -189,8 +189,9 @@ pub trait Primitives: Send + Sync {
     /// Tests primitives `ids` (at most [`BLOCK`]; lane `k` is primitive
     /// `ids[k]`) as [`Self::intersect_block`] tests consecutive ones: the
     /// grid's cells (and the k-d tree's leaves, over primitives not
-    /// stored in its leaf order) name their primitives by index. Triangles gather the corners into a block for the SIMD test;
-    /// the default loops.
+    /// stored in its leaf order) name their primitives by index.
+    /// Triangles gather the corners into a block for the SIMD test; the
+    /// default loops.
     #[inline]
     fn intersect_ids(&self, ids: &[u32], ray: &Ray, tmax: f32) -> (u32, BlockHits) {
         let ids = &ids[..ids.len().min(BLOCK)];

@@ -756,8 +756,9 @@ impl<P: Primitives> Scene<P> {
     }
 
     /// [`Self::leaf_closest`] for a list of primitives (a grid cell's
-    /// untested primitives, a k-d tree's leaf over primitives it names): a block of [`BLOCK`] at a time
-    /// ([`Primitives::intersect_ids`]), each hit offered in list order.
+    /// untested primitives, a k-d tree's leaf over primitives it names): a
+    /// block of [`BLOCK`] at a time ([`Primitives::intersect_ids`]), each
+    /// hit offered in list order.
     #[inline(always)]
     fn list_closest(
         &self,
