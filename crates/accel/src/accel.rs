@@ -153,10 +153,10 @@ pub struct BuildConfig {
     /// test. `None`: a `Scene` over primitives whose leaves it tests as
     /// blocks (triangles) picks its SIMD block width for the binned and
     /// sweep BVHs and the k-d tree (whose leaves it stores as runs of
-    /// rows, a triangle copied into each leaf it reaches); everything else counts
-    /// one by one, including the binary tree a wide BVH is collapsed from
-    /// (the collapse weighs blocks itself, and a finer tree gives it more
-    /// to choose from).
+    /// rows, a triangle copied into each leaf it reaches); everything
+    /// else counts one by one, including the binary tree a wide BVH is
+    /// collapsed from (the collapse weighs blocks itself, and a finer
+    /// tree gives it more to choose from).
     pub leaf_block: Option<usize>,
     /// Spatial splits (SBVH, Stich et al. 2009) for the binned SAH BVHs
     /// (`bvh-binned`, `bvh4`, `bvh8`): how many references spatial splits

@@ -350,7 +350,8 @@ impl KdTree {
 
     /// Hands over [`Self::leaf_order`] once the owner has stored its
     /// primitives by it: from then on a leaf names its slots
-    /// ([`Self::traverse_ranges`]), and lists name slots too.
+    /// ([`Self::traverse_ranges`]), and the tree has no lists
+    /// ([`Self::names_slots`]).
     pub(crate) fn take_leaf_order(&mut self) -> Vec<u32> {
         self.slots = true;
         std::mem::take(&mut self.prims)
