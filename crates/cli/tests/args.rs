@@ -121,7 +121,6 @@ fn bench_hands_peers_to_raymesh_peers() {
         raymesh().args(["bench", "a.off", "--", "--interleave"]),
         "--peers <LIST>",
     );
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// Every command that writes a file takes its path as `-o`, `--out` or

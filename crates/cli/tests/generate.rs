@@ -91,7 +91,6 @@ fn generate_writes_meshes_of_the_asked_size() {
             .arg(&terrain),
         "--teapot goes with teapot-in-stadium",
     );
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// Rays framed on the teapot mostly hit it, and the grid (the structure
@@ -188,7 +187,6 @@ fn rays_framed_on_the_teapot_hit_it_and_agree() {
             "--frame",
         );
     }
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -254,5 +252,4 @@ fn scale_reports_every_size_structure_and_thread_count_with_a_chart() {
         .output()
         .unwrap();
     assert!(!out.status.success());
-    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -59,8 +59,7 @@ fn info_table() {
 
 #[test]
 fn bad_input_fails_with_the_error_on_stderr() {
-    let dir = std::env::temp_dir().join(format!("raymesh-cli-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = tmpdir("cli");
     let bad = dir.join("bad.off");
     std::fs::write(&bad, "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n").unwrap();
     let out = raymesh()
@@ -84,7 +83,6 @@ fn bad_input_fails_with_the_error_on_stderr() {
     assert!(String::from_utf8(out.stderr)
         .unwrap()
         .contains("missing.ply"));
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]

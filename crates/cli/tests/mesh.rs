@@ -64,8 +64,7 @@ fn mesh_json_has_the_contract_keys() {
 
 #[test]
 fn strict_names_the_faces_and_default_repairs() {
-    let dir = std::env::temp_dir().join(format!("raymesh-meshcli-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = tmpdir("meshcli");
     let bowtie = dir.join("bowtie.off");
     std::fs::write(
         &bowtie,
@@ -99,13 +98,11 @@ fn strict_names_the_faces_and_default_repairs() {
             && err.contains("faces 0, 1"),
         "{err}"
     );
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
 fn subdivide_writes_the_levels_asked_for() {
-    let dir = std::env::temp_dir().join(format!("raymesh-subdiv-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = tmpdir("subdiv");
     let out_ply = dir.join("s.ply");
     let out = raymesh()
         .arg("subdivide")
@@ -144,5 +141,4 @@ fn subdivide_writes_the_levels_asked_for() {
         .unwrap();
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("catmull-clark"));
-    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -162,7 +162,6 @@ fn every_structure_writes_the_same_hits() {
             );
         }
     }
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -241,7 +240,6 @@ fn any_hit_agrees_on_what_is_hit() {
             .args(["--stats", "--repeat", "2"]),
     );
     assert!(table.contains("nodes visited"), "{table}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -307,7 +305,6 @@ fn bad_inputs_are_clear_errors() {
             &format!("{flag} "),
         );
     }
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// `raymesh bench` of fixture `mesh` with `args` and `--json`, which must

@@ -7,8 +7,7 @@ use std::path::PathBuf;
 
 #[test]
 fn demo_and_mesh_render_without_overwriting() {
-    let dir = std::env::temp_dir().join(format!("raymesh-render-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = tmpdir("render");
     let small = ["--width", "64", "--height", "48", "--spp", "1"];
     // The demo goes to raymesh.png; an existing one is kept and a free name is used.
     std::fs::write(dir.join("raymesh.png"), b"keep me").unwrap();
@@ -88,7 +87,6 @@ fn demo_and_mesh_render_without_overwriting() {
         .unwrap();
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("none.json: cannot read"));
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -114,7 +112,6 @@ fn example_scenes_parse_and_render() {
         assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n", "{name}");
         assert_eq!(&bytes[16..24], &[0, 0, 0, 40, 0, 0, 0, 30], "{name}");
     }
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// A mesh far larger or smaller than the scene `render` makes around a
@@ -123,8 +120,7 @@ fn example_scenes_parse_and_render() {
 /// file's line 1), and a mesh 1e15 units across renders.
 #[test]
 fn meshes_out_of_range_are_refused_plainly() {
-    let dir = std::env::temp_dir().join(format!("raymesh-render-range-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = tmpdir("render-range");
     let tet = |s: f32| {
         format!(
             "OFF\n4 4 0\n0 0 0\n{s:e} 0 0\n0 {s:e} 0\n0 0 {s:e}\n3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n"
@@ -153,5 +149,4 @@ fn meshes_out_of_range_are_refused_plainly() {
             .args(["--width", "8", "--height", "8", "--spp", "1", "-o"])
             .arg(dir.join("big.png")),
     );
-    std::fs::remove_dir_all(&dir).ok();
 }

@@ -16,11 +16,43 @@ pub fn data(name: &str) -> PathBuf {
         .join(name)
 }
 
-/// A fresh temporary folder for one test.
-pub fn tmpdir(tag: &str) -> PathBuf {
+/// A fresh temporary folder for one test, removed with everything in it
+/// when the test ends, whether it passes or fails (a failing test's files
+/// would otherwise pile up in the temporary folder, one per run).
+pub struct TmpDir(PathBuf);
+
+impl std::ops::Deref for TmpDir {
+    type Target = Path;
+    fn deref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl AsRef<Path> for TmpDir {
+    fn as_ref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl AsRef<std::ffi::OsStr> for TmpDir {
+    fn as_ref(&self) -> &std::ffi::OsStr {
+        self.0.as_os_str()
+    }
+}
+
+impl Drop for TmpDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// A fresh temporary folder for one test (see [`TmpDir`]).
+pub fn tmpdir(tag: &str) -> TmpDir {
     let d = std::env::temp_dir().join(format!("raymesh-{tag}-{}", std::process::id()));
+    // A folder left by a killed run of the same process id starts empty.
+    let _ = std::fs::remove_dir_all(&d);
     std::fs::create_dir_all(&d).unwrap();
-    d
+    TmpDir(d)
 }
 
 /// Runs `cmd`, which must succeed; its standard output.
