@@ -31,6 +31,9 @@ pub enum ErrorKind {
     /// The file could not be read.
     #[error("cannot read")]
     Io(#[source] std::io::Error),
+    /// The file could not be written ([`crate::io::write_mesh`]).
+    #[error("cannot write")]
+    Write(#[source] std::io::Error),
     /// The file holds nothing.
     #[error("the file is empty")]
     Empty,
@@ -123,7 +126,7 @@ impl fmt::Display for MeshError {
 impl std::error::Error for MeshError {
     fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
         match &self.kind {
-            ErrorKind::Io(e) => Some(e),
+            ErrorKind::Io(e) | ErrorKind::Write(e) => Some(e),
             _ => None,
         }
     }

@@ -177,11 +177,11 @@ pub fn read_bytes(bytes: &[u8], format: Format) -> Result<IndexedMesh, MeshError
 pub fn write_mesh(path: impl AsRef<Path>, mesh: &IndexedMesh) -> Result<(), MeshError> {
     let path = path.as_ref();
     let io_err =
-        |e: std::io::Error| MeshError::new(Location::File, ErrorKind::Io(e)).with_path(path);
+        |e: std::io::Error| MeshError::new(Location::File, ErrorKind::Write(e)).with_path(path);
     let format = Format::from_extension(path).ok_or_else(|| {
         MeshError::new(
             Location::File,
-            ErrorKind::UnknownFormat("cannot write this extension".into()),
+            ErrorKind::Unsupported("writing this extension; write .obj, .off or .ply".into()),
         )
         .with_path(path)
     })?;

@@ -126,6 +126,18 @@ fn write_mesh_by_extension_and_read_back() {
         assert_eq!(read_mesh(&path).unwrap(), sample());
     }
     assert!(write_mesh(dir.join("m.stl"), &sample()).is_err());
+    // Errors of writing say so, with the path (they said "cannot read").
+    let e = write_mesh(dir.join("m.xyz"), &sample())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("m.xyz") && e.contains(".obj, .off or .ply"),
+        "{e}"
+    );
+    let missing = dir.join("no-such-folder").join("m.off");
+    let e = write_mesh(&missing, &sample()).unwrap_err();
+    assert!(matches!(e.kind, ErrorKind::Write(_)), "{e:?}");
+    assert!(e.to_string().contains("m.off: cannot write"), "{e}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
