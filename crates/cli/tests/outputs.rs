@@ -98,3 +98,71 @@ fn no_command_writes_its_output_over_an_input() {
     run_ok(raymesh().arg("subdivide").arg(&mesh).arg("-o").arg(&other));
     assert!(before(&other).starts_with(b"OFF"));
 }
+
+/// Every command that writes a file refuses, before its work, an output it
+/// could not write: in a folder that does not exist, under a path through
+/// a file, or a folder itself; and `render` an output that is not a PNG.
+/// (They had run to their end and then failed to write, the render or the
+/// subdivision lost, some saying "cannot read" of the file to write.)
+#[test]
+fn outputs_that_cannot_be_written_are_refused_before_the_work() {
+    let dir = tmpdir("unwritable");
+    let mesh = dir.join("t.off");
+    std::fs::copy(data("tetrahedron.off"), &mesh).unwrap();
+    let rays = dir.join("r.npy");
+    write_rays(&mesh, "random", 4, &rays);
+    let m = mesh.display().to_string();
+    let r = rays.display().to_string();
+    let commands: Vec<(Vec<&str>, &str)> = vec![
+        (vec!["subdivide", &m, "-o"], "s.off"),
+        (
+            vec!["rays", &m, "--workload", "random", "--size", "2", "-o"],
+            "r2.npy",
+        ),
+        (vec!["raycast", &m, "--rays", &r, "--out"], "h.npy"),
+        (
+            vec!["render", &m, "--width", "4", "--height", "4", "-o"],
+            "i.png",
+        ),
+        (
+            vec!["render", "--width", "4", "--height", "4", "-o"],
+            "demo.png",
+        ),
+        (
+            vec!["generate", "sphere", "--triangles", "100", "-o"],
+            "g.ply",
+        ),
+        (
+            vec![
+                "scale", "--sizes", "0.0001", "--size", "8", "--repeat", "1", "--chart",
+            ],
+            "c.svg",
+        ),
+    ];
+    let missing = dir.join("no-such-folder");
+    for (args, name) in &commands {
+        fails_with(
+            raymesh().args(args).arg(missing.join(name)),
+            &format!("cannot write there: {} does not exist", missing.display()),
+        );
+        fails_with(
+            raymesh().args(args).arg(mesh.join(name)),
+            &format!("cannot write there: {} is not a folder", mesh.display()),
+        );
+        let folder = dir.join(name);
+        std::fs::create_dir(&folder).unwrap();
+        fails_with(raymesh().args(args).arg(&folder), "this is a folder");
+        std::fs::remove_dir(&folder).unwrap();
+        // Nothing was made, and the same command writes where it can.
+        assert!(!missing.exists());
+        run_ok(raymesh().args(args).arg(dir.join(name)));
+        assert!(dir.join(name).is_file(), "{args:?}");
+    }
+    for name in ["i.jpg", "i.json", "i"] {
+        fails_with(
+            raymesh().arg("render").arg("-o").arg(dir.join(name)),
+            "render writes PNG images (.png)",
+        );
+        assert!(!dir.join(name).exists());
+    }
+}

@@ -66,9 +66,12 @@ pub fn run(args: &Args) -> Result<()> {
     if args.teapot.is_some() && args.kind != Kind::TeapotInStadium {
         bail!("--teapot goes with teapot-in-stadium");
     }
-    if let Some(teapot) = &args.teapot {
-        crate::cmd::refuse_output_over_input(&args.output, &[("--teapot mesh", teapot)])?;
-    }
+    let teapot: Vec<(&str, &std::path::Path)> = args
+        .teapot
+        .iter()
+        .map(|t| ("--teapot mesh", t.as_path()))
+        .collect();
+    crate::cmd::check_output(&args.output, &teapot)?;
     let start = Instant::now();
     let mesh = match args.kind {
         Kind::Terrain => synthetic::terrain(args.triangles),

@@ -287,7 +287,7 @@ pub fn run(args: &Args) -> Result<()> {
     let pool = crate::cmd::thread_pool(args.threads)?;
     let threads = pool.current_num_threads();
     if let Some(out) = &args.out {
-        crate::cmd::refuse_output_over_input(out, &[("mesh", &args.mesh), ("rays", &args.rays)])?;
+        crate::cmd::check_output(out, &[("mesh", &args.mesh), ("rays", &args.rays)])?;
     }
     let mut mesh = crate::cmd::read_mesh(&args.mesh)?;
     let rays = npy::read_ray_rows(&args.rays)?;

@@ -37,7 +37,7 @@ pub fn run(args: &Args) -> Result<()> {
     if args.size == 0 || args.size > 8192 {
         bail!("--size must be in 1..=8192");
     }
-    crate::cmd::refuse_output_over_input(&args.out, &[("mesh", &args.mesh)])?;
+    crate::cmd::check_output(&args.out, &[("mesh", &args.mesh)])?;
     let mesh = crate::cmd::read_mesh(&args.mesh)?;
     let scene = Scene::build(
         TriangleMesh::new(mesh.positions.clone(), mesh.triangles()),

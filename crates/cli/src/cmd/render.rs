@@ -207,13 +207,14 @@ pub fn run(args: &Args) -> Result<()> {
             .as_str(),
         ),
     };
+    // The scene or mesh given, and the mesh files a scene names.
+    let mut inputs = Vec::new();
     if let Some(input) = &args.input {
-        // The scene or mesh given, and the mesh files a scene names.
         let scene = input
             .extension()
             .is_some_and(|e| e.eq_ignore_ascii_case("json"));
         let what = if scene { "scene" } else { "mesh" };
-        let mut inputs = vec![(what, input.clone())];
+        inputs.push((what, input.clone()));
         for s in &desc.surfaces {
             if let raymesh_render::SurfaceDesc::Mesh(m) = s {
                 if !m.file.starts_with("builtin:") {
@@ -221,8 +222,16 @@ pub fn run(args: &Args) -> Result<()> {
                 }
             }
         }
-        let inputs: Vec<(&str, &Path)> = inputs.iter().map(|(w, p)| (*w, p.as_path())).collect();
-        crate::cmd::refuse_output_over_input(&out, &inputs)?;
+    }
+    let inputs: Vec<(&str, &Path)> = inputs.iter().map(|(w, p)| (*w, p.as_path())).collect();
+    crate::cmd::check_output(&out, &inputs)?;
+    // Checked before the render, which would otherwise run to its end and
+    // then fail to write.
+    if !out
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("png"))
+    {
+        bail!("{}: render writes PNG images (.png)", out.display());
     }
     let step = crate::cmd::stage("reading meshes and building structures".to_string());
     let world = pool.install(|| World::build(&desc, &file, &mesh_loader(base)))?;

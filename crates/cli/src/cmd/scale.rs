@@ -113,6 +113,7 @@ pub fn run(args: &Args) -> Result<()> {
         if chart.extension().and_then(|e| e.to_str()) != Some("svg") {
             bail!("{}: the chart is an SVG file (.svg)", chart.display());
         }
+        crate::cmd::check_output(chart, &[])?;
     }
     let pools: Vec<rayon::ThreadPool> = threads
         .iter()

@@ -41,7 +41,7 @@ pub fn run(args: &Args) -> Result<()> {
             args.output.display()
         );
     }
-    crate::cmd::refuse_output_over_input(&args.output, &[("mesh", &args.file)])?;
+    crate::cmd::check_output(&args.output, &[("mesh", &args.file)])?;
     let mut mesh = crate::cmd::read_mesh(&args.file)?;
     // Faces grow 4× per level (Loop) or to about 4× (Catmull–Clark, after the first).
     let faces_after = (mesh.indices().len() as f64) * 4f64.powi(args.levels as i32);
