@@ -7,10 +7,11 @@ use crate::Trace;
 use anyhow::{bail, Context, Result};
 use std::path::Path;
 
-/// Checks the chart's file name before the run, not after it.
+/// Checks the chart's file name, and that it can be written there
+/// ([`raymesh::check_writable`]), before the run, not after it.
 pub fn check_path(path: &Path) -> Result<()> {
     match path.extension().and_then(|e| e.to_str()) {
-        Some("png" | "svg") => Ok(()),
+        Some("png" | "svg") => raymesh::check_writable(path),
         _ => bail!("{}: the chart is a .png or .svg file", path.display()),
     }
 }

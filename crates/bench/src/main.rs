@@ -933,6 +933,24 @@ fn traceable(mut rows: Vec<Row>) -> (Vec<Row>, Vec<(usize, Row)>) {
 mod tests {
     use super::*;
 
+    /// The chart's name and folder are checked before the run: a chart in
+    /// a folder that does not exist was found out after the benchmark.
+    #[test]
+    fn chart_paths_are_checked_before_the_run() {
+        let dir = std::env::temp_dir();
+        chart::check_path(&dir.join("c.png")).unwrap();
+        chart::check_path(&dir.join("c.svg")).unwrap();
+        let e = chart::check_path(&dir.join("c.jpg"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("a .png or .svg file"), "{e}");
+        let missing = dir.join(format!("raymesh-no-folder-{}", std::process::id()));
+        let e = chart::check_path(&missing.join("c.png"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("does not exist"), "{e}");
+    }
+
     /// Rows that are not rays, or that Embree would refuse, become the
     /// empty row, and are named; valid rows stay as they are, bit for
     /// bit; the empty row is no valid ray to raymesh (which misses it).

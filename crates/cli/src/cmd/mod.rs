@@ -42,35 +42,13 @@ pub fn same_file(a: &std::path::Path, b: &std::path::Path) -> bool {
 }
 
 /// Checks, before the command's work, that `output` can be written where
-/// it is named, and is none of the command's `inputs` (see
-/// [`refuse_output_over_input`]): its folder must exist (raymesh makes no
-/// folders) and it must not be a folder itself. Without this a render or a
-/// subdivision ran to its end and then failed to write, its work lost.
+/// it is named ([`raymesh::check_writable`]), and is none of the command's
+/// `inputs` ([`refuse_output_over_input`]).
 pub fn check_output(
     output: &std::path::Path,
     inputs: &[(&str, &std::path::Path)],
 ) -> anyhow::Result<()> {
-    if output.is_dir() {
-        anyhow::bail!(
-            "{}: this is a folder; name a file to write",
-            output.display()
-        );
-    }
-    let folder = output.parent().filter(|p| !p.as_os_str().is_empty());
-    if let Some(folder) = folder {
-        if !folder.is_dir() {
-            let why = if folder.exists() {
-                "is not a folder"
-            } else {
-                "does not exist"
-            };
-            anyhow::bail!(
-                "{}: cannot write there: {} {why}",
-                output.display(),
-                folder.display()
-            );
-        }
-    }
+    raymesh::check_writable(output)?;
     refuse_output_over_input(output, inputs)
 }
 
