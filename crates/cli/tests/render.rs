@@ -87,6 +87,23 @@ fn demo_and_mesh_render_without_overwriting() {
         .unwrap();
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("none.json: cannot read"));
+    // A mesh a scene names that cannot be read: the scene, the field, the
+    // file and why (the reason had been dropped).
+    let scene = dir.join("lost.json");
+    std::fs::write(
+        &scene,
+        r#"{"camera": {"eye": [0, 0, 5], "target": [0, 0, 0]},
+            "surfaces": [{"type": "mesh", "file": "gone.off"}]}"#,
+    )
+    .unwrap();
+    fails_with(
+        raymesh()
+            .arg("render")
+            .arg(&scene)
+            .arg("-o")
+            .arg(dir.join("lost.png")),
+        "gone.off: cannot read: No such file",
+    );
 }
 
 #[test]

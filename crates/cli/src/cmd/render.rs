@@ -60,14 +60,16 @@ fn builtin(name: &str) -> Option<raymesh_mesh::IndexedMesh> {
     }
 }
 
-/// Resolves a scene's mesh path: `builtin:NAME`, or a file relative to the scene.
+/// Resolves a scene's mesh path: `builtin:NAME`, or a file relative to the
+/// scene. A file's error keeps its cause (`cannot read: No such file or
+/// directory`), which the error's own text leaves to its source.
 fn mesh_loader(base: PathBuf) -> impl Fn(&str) -> Result<raymesh_mesh::IndexedMesh, String> {
     move |file: &str| {
         if let Some(name) = file.strip_prefix("builtin:") {
             return builtin(name)
                 .ok_or_else(|| format!("no built-in mesh '{name}' (there is: torus-knot)"));
         }
-        read_mesh(base.join(file)).map_err(|e| e.to_string())
+        read_mesh(base.join(file)).map_err(|e| format!("{:#}", anyhow::Error::from(e)))
     }
 }
 
