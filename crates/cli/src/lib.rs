@@ -50,8 +50,11 @@ pub fn check_writable(output: &std::path::Path) -> anyhow::Result<()> {
 mod tests {
     #[test]
     fn writable_paths_need_an_existing_folder_and_a_file_name() {
-        let dir = std::env::temp_dir().join(format!("raymesh-writable-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let tmp = tempfile::Builder::new()
+            .prefix("raymesh-writable-")
+            .tempdir()
+            .unwrap();
+        let dir = tmp.path();
         let file = dir.join("f.txt");
         std::fs::write(&file, "x").unwrap();
         let err = |p: &std::path::Path| super::check_writable(p).unwrap_err().to_string();
@@ -60,13 +63,12 @@ mod tests {
         super::check_writable(&file).unwrap();
         super::check_writable(&dir.join("new.png")).unwrap();
         super::check_writable(std::path::Path::new("new.png")).unwrap();
-        assert!(err(&dir).ends_with("this is a folder; name a file to write"));
+        assert!(err(dir).ends_with("this is a folder; name a file to write"));
         let missing = dir.join("missing").join("a.png");
         assert!(
             err(&missing).ends_with(&format!("{} does not exist", dir.join("missing").display()))
         );
         assert!(err(&file.join("a.png")).ends_with(&format!("{} is not a folder", file.display())));
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

@@ -19,40 +19,36 @@ pub fn data(name: &str) -> PathBuf {
 /// A fresh temporary folder for one test, removed with everything in it
 /// when the test ends, whether it passes or fails (a failing test's files
 /// would otherwise pile up in the temporary folder, one per run).
-pub struct TmpDir(PathBuf);
+pub struct TmpDir(tempfile::TempDir);
 
 impl std::ops::Deref for TmpDir {
     type Target = Path;
     fn deref(&self) -> &Path {
-        &self.0
+        self.0.path()
     }
 }
 
 impl AsRef<Path> for TmpDir {
     fn as_ref(&self) -> &Path {
-        &self.0
+        self.0.path()
     }
 }
 
 impl AsRef<std::ffi::OsStr> for TmpDir {
     fn as_ref(&self) -> &std::ffi::OsStr {
-        self.0.as_os_str()
+        self.0.path().as_os_str()
     }
 }
 
-impl Drop for TmpDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
-/// A fresh temporary folder for one test (see [`TmpDir`]).
+/// A fresh temporary folder for one test, named `raymesh-TAG-…` (see
+/// [`TmpDir`]).
 pub fn tmpdir(tag: &str) -> TmpDir {
-    let d = std::env::temp_dir().join(format!("raymesh-{tag}-{}", std::process::id()));
-    // A folder left by a killed run of the same process id starts empty.
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    TmpDir(d)
+    TmpDir(
+        tempfile::Builder::new()
+            .prefix(&format!("raymesh-{tag}-"))
+            .tempdir()
+            .unwrap(),
+    )
 }
 
 /// Runs `cmd`, which must succeed; its standard output.

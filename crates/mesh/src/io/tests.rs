@@ -118,8 +118,12 @@ fn large_binary_ply_reads_in_parallel_and_still_reports_errors() {
 
 #[test]
 fn write_mesh_by_extension_and_read_back() {
-    let dir = std::env::temp_dir().join(format!("raymesh-io-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    // Removed when it goes out of scope, whether the test passes or not.
+    let tmp = tempfile::Builder::new()
+        .prefix("raymesh-io-")
+        .tempdir()
+        .unwrap();
+    let dir = tmp.path();
     for ext in ["obj", "off", "ply"] {
         let path = dir.join(format!("m.{ext}"));
         write_mesh(&path, &sample()).unwrap();
@@ -138,7 +142,6 @@ fn write_mesh_by_extension_and_read_back() {
     let e = write_mesh(&missing, &sample()).unwrap_err();
     assert!(matches!(e.kind, ErrorKind::Write(_)), "{e:?}");
     assert!(e.to_string().contains("m.off: cannot write"), "{e}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -265,8 +268,12 @@ fn read_mesh_names_the_file() {
         e.to_string().contains("does-not-exist.off: cannot read"),
         "{e}"
     );
-    let dir = std::env::temp_dir().join(format!("raymesh-err-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    // Removed when it goes out of scope, whether the test passes or not.
+    let tmp = tempfile::Builder::new()
+        .prefix("raymesh-err-")
+        .tempdir()
+        .unwrap();
+    let dir = tmp.path();
     let p = dir.join("bad.off");
     std::fs::write(&p, b"OFF\n3 1 0\n0 0 0\n").unwrap();
     let e = read_mesh(&p).unwrap_err();
@@ -286,7 +293,6 @@ fn read_mesh_names_the_file() {
     let p = dir.join("sniffed");
     std::fs::write(&p, b"OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n").unwrap();
     assert_eq!(read_mesh(&p).unwrap().num_faces(), 1);
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// Every fixture in the repository loads with the counts its header gives.
@@ -560,12 +566,15 @@ fn off_files_stream_and_read_as_their_bytes_do() {
 /// `format`: the same mesh, or the same error at the same place. Returns
 /// whether it read. `what` names the case in a failure.
 fn file_reads_as_bytes(name: &str, format: Format, bytes: &[u8], what: &str) -> bool {
-    let dir = std::env::temp_dir().join(format!("raymesh-file-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    // Removed when it goes out of scope, whether the test passes or not.
+    let tmp = tempfile::Builder::new()
+        .prefix(&format!("raymesh-file-{name}-"))
+        .tempdir()
+        .unwrap();
+    let dir = tmp.path();
     let path = dir.join(name);
     std::fs::write(&path, bytes).unwrap();
     let from_file = read_mesh(&path).map_err(|e| (e.kind.to_string(), e.location));
-    std::fs::remove_dir_all(&dir).unwrap();
     let from_bytes = read_bytes(bytes, format).map_err(|e| (e.kind.to_string(), e.location));
     assert!(
         from_file == from_bytes,
@@ -676,12 +685,15 @@ fn obj_files_read_as_their_bytes_do() {
 #[cfg(unix)]
 #[test]
 fn pipes_are_read_once() {
-    let dir = std::env::temp_dir().join(format!("raymesh-pipe-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    // Removed when it goes out of scope, whether the test passes or not.
+    let tmp = tempfile::Builder::new()
+        .prefix("raymesh-pipe-")
+        .tempdir()
+        .unwrap();
+    let dir = tmp.path();
     let path = dir.join("mesh.ply");
     let made = std::process::Command::new("mkfifo").arg(&path).status();
     if !made.is_ok_and(|s| s.success()) {
-        std::fs::remove_dir_all(&dir).unwrap();
         return; // no mkfifo here: nothing to test
     }
     let m = crate::synthetic::terrain(200).into_indexed();
@@ -696,7 +708,6 @@ fn pipes_are_read_once() {
     };
     let got = read_mesh(&path).map_err(|e| (e.kind.to_string(), e.location));
     writer.join().unwrap();
-    std::fs::remove_dir_all(&dir).unwrap();
     assert!(want.is_err());
     assert_eq!(got, want);
 }
@@ -956,8 +967,12 @@ proptest! {
 /// gives the same mesh as reading without a callback.
 #[test]
 fn read_mesh_with_reports_progress_to_the_end() {
-    let dir = std::env::temp_dir().join(format!("raymesh-progress-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    // Removed when it goes out of scope, whether the test passes or not.
+    let tmp = tempfile::Builder::new()
+        .prefix("raymesh-progress-")
+        .tempdir()
+        .unwrap();
+    let dir = tmp.path();
     // An OFF file of about 17 MiB: three chunks.
     let mut text = String::from("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n");
     while text.len() < 17 << 20 {
@@ -967,7 +982,6 @@ fn read_mesh_with_reports_progress_to_the_end() {
     std::fs::write(&path, &text).unwrap();
     let mut calls = Vec::new();
     let mesh = read_mesh_with(&path, &mut |done, total| calls.push((done, total))).unwrap();
-    std::fs::remove_dir_all(&dir).unwrap();
     let size = text.len() as u64;
     assert!(calls.len() >= 3, "{calls:?}");
     assert!(calls.windows(2).all(|w| w[0].0 <= w[1].0), "{calls:?}");
