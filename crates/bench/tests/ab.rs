@@ -52,8 +52,11 @@ fn a_build_compared_with_itself_returns_the_same_hits() {
 
 #[test]
 fn a_rays_file_is_read_as_given() {
-    let dir = std::env::temp_dir().join(format!("raymesh-ab-test-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp = tempfile::Builder::new()
+        .prefix("raymesh-ab-test-")
+        .tempdir()
+        .unwrap();
+    let dir = tmp.path();
     let rays = dir.join("rays.npy");
     let mut file = std::fs::File::create(&rays).unwrap();
     raymesh::npy::write_rays(
@@ -82,7 +85,6 @@ fn a_rays_file_is_read_as_given() {
     );
     assert!(stdout.contains("3 rays"), "{stdout}");
     assert!(stdout.contains("the same hits"), "{stdout}");
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
