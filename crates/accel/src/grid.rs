@@ -36,6 +36,16 @@ const MAX_CELLS: usize = 1 << 26;
 /// 0.96-0.99x), shadow 0.99-1.20x; for a byte a cell (about 2 a
 /// triangle) and builds 7-13% longer (`raymesh scale --accel grid`, 1M
 /// and 10M triangles).
+///
+/// A cell that lists [`BuildConfig::grid_subgrid_min`] primitives or more
+/// (64 by default), and [`BuildConfig::grid_subgrid_ratio`] times the mean
+/// of the cells that list any (4), gets a grid of its own, walked in turn
+/// when a ray meets the cell: a two-level grid, which adapts to a dense
+/// object in a large sparse scene where one level cannot (the bunny on
+/// the field of a stadium: 0.0074 -> 1.1 Mrays/s, docs/measurements.md,
+/// *The teapot in a stadium*). Where no cell has a grid, the walk is
+/// compiled without the steps into them and costs what a one-level walk
+/// does.
 #[derive(Clone, Debug)]
 pub struct Grid {
     bounds: Aabb,
@@ -49,8 +59,32 @@ pub struct Grid {
     /// cell that does, at most [`MAX_CLEARANCE`]. Every cell closer than
     /// that is empty, so a ray crosses them in one skip.
     clearance: Vec<u8>,
+    /// The grids of the cells whose clearance is [`SUBGRID`], each listed
+    /// by its index in its cell's list (see [`Self::split_dense_cells`]).
+    /// Their own cells have none.
+    subgrids: Vec<Grid>,
     len: usize,
 }
+
+/// [`Grid::clearance`] of a cell whose primitives lie in a grid of its own
+/// ([`Grid::subgrids`]): beyond [`MAX_CLEARANCE`], which no empty cell
+/// exceeds.
+const SUBGRID: u8 = u8::MAX;
+
+/// The fewest cells (or references, or bytes) a parallel pass of a build
+/// gives each of its tasks: a cell's own grid (a few hundred cells) is
+/// built in one, on the thread that builds it, not split into tasks of a
+/// few cells each (10M triangles of terrain gave 85,000 cells grids of
+/// their own, which took 1.4 s with tasks that small).
+const PAR_MIN: usize = 4096;
+
+/// [`PAR_MIN`] for the passes over primitives, each of which visits its
+/// cells.
+const PAR_MIN_PRIMS: usize = 256;
+
+/// The most references a cell's grid may make a primitive of the cell on
+/// average ([`Grid::split_dense_cells`]).
+const SUBGRID_MAX_REFS: u64 = 8;
 
 /// The fewest cells a primitive's box must span for a clipped build
 /// ([`Grid::build_clipped`]) to clip it: 3 × 3 × 3. From 8, a 2 × 2 × 2
@@ -95,6 +129,7 @@ fn clearance(starts: &[u32], res: [u32; 3]) -> Vec<u8> {
     let [rx, ry, rz] = res.map(|r| r as usize);
     let mut from: Vec<u8> = starts
         .par_windows(2)
+        .with_min_len(PAR_MIN)
         .map(|w| if w[1] > w[0] { 0 } else { MAX_CLEARANCE })
         .collect();
     let mut to = from.clone();
@@ -104,6 +139,7 @@ fn clearance(starts: &[u32], res: [u32; 3]) -> Vec<u8> {
     let pass = |from: &[u8], to: &mut [u8], run: usize, stride: usize, len: usize| {
         to.par_chunks_mut(run)
             .zip(from.par_chunks(run))
+            .with_min_len(PAR_MIN.div_ceil(run))
             .for_each(|(to, from)| {
                 for k in 1..(MAX_CLEARANCE as usize).min(len) {
                     let off = k * stride;
@@ -125,19 +161,22 @@ fn clearance(starts: &[u32], res: [u32; 3]) -> Vec<u8> {
     from.copy_from_slice(&to);
     // Along z, slice by slice: each slice reads the slices `k` away.
     let slice = rx * ry;
-    to.par_chunks_mut(slice).enumerate().for_each(|(z, to)| {
-        for k in 1..(MAX_CLEARANCE as usize).min(rz) {
-            let kk = k as u8;
-            for zz in [z.checked_sub(k), Some(z + k).filter(|&zz| zz < rz)]
-                .into_iter()
-                .flatten()
-            {
-                for (t, &f) in to.iter_mut().zip(&from[zz * slice..(zz + 1) * slice]) {
-                    *t = (*t).min(f.max(kk));
+    to.par_chunks_mut(slice)
+        .enumerate()
+        .with_min_len(PAR_MIN.div_ceil(slice))
+        .for_each(|(z, to)| {
+            for k in 1..(MAX_CLEARANCE as usize).min(rz) {
+                let kk = k as u8;
+                for zz in [z.checked_sub(k), Some(z + k).filter(|&zz| zz < rz)]
+                    .into_iter()
+                    .flatten()
+                {
+                    for (t, &f) in to.iter_mut().zip(&from[zz * slice..(zz + 1) * slice]) {
+                        *t = (*t).min(f.max(kk));
+                    }
                 }
             }
-        }
-    });
+        });
     to
 }
 
@@ -181,7 +220,9 @@ impl Grid {
         (grid, union)
     }
 
-    /// [`Self::build_by`] once the union of the boxes, `bounds`, is known.
+    /// [`Self::build_by`] once the union of the boxes, `bounds`, is known:
+    /// one level of cells, then a grid of its own in each cell that lists
+    /// [`BuildConfig::grid_subgrid_min`] primitives or more.
     fn build_in(
         n: usize,
         box_of: &(dyn Fn(u32) -> Aabb + Sync),
@@ -189,8 +230,26 @@ impl Grid {
         bounds: Aabb,
         config: &BuildConfig,
     ) -> Self {
+        let mut g = Self::build_level(n, box_of, clip, bounds, config, None)
+            .expect("a build without a reference budget");
+        if config.grid_subgrid_min > 0 {
+            g.split_dense_cells(box_of, clip, config);
+        }
+        g
+    }
+
+    /// One level of cells over `bounds` (see [`Self::build_in`]); `None`
+    /// when the primitives would be listed more than `max_refs` times.
+    fn build_level(
+        n: usize,
+        box_of: &(dyn Fn(u32) -> Aabb + Sync),
+        clip: Option<&Clip<'_>>,
+        bounds: Aabb,
+        config: &BuildConfig,
+        max_refs: Option<u64>,
+    ) -> Option<Self> {
         if n == 0 || bounds.is_empty() {
-            return Self {
+            return Some(Self {
                 bounds: Aabb::EMPTY,
                 res: [1; 3],
                 cell_size: Vec3::ONE,
@@ -198,8 +257,9 @@ impl Grid {
                 cell_starts: vec![0, 0],
                 cell_prims: Vec::new(),
                 clearance: vec![MAX_CLEARANCE],
+                subgrids: Vec::new(),
                 len: n,
-            };
+            });
         }
         // Flat boxes get a thickness so cells have volume, and the grid's box
         // is padded so it holds every primitive strictly (`min + (max - min)`
@@ -232,6 +292,7 @@ impl Grid {
             cell_starts: Vec::new(),
             cell_prims: Vec::new(),
             clearance: Vec::new(),
+            subgrids: Vec::new(),
             len: n,
         };
         // Two parallel passes, count per cell then fill (CSR), with atomic
@@ -240,16 +301,34 @@ impl Grid {
         let ncells = res.iter().map(|&r| r as usize).product::<usize>();
         // Every pass over cells or references runs in parallel: at 100M
         // triangles the sequential ones were most of the build.
-        let counts: Vec<AtomicU32> = (0..=ncells)
+        let counts: Vec<AtomicU32> = (0..ncells + 1)
             .into_par_iter()
+            .with_min_len(PAR_MIN)
             .map(|_| AtomicU32::new(0))
             .collect();
-        (0..n as u32).into_par_iter().for_each(|i| {
-            g.for_cells_of(i, &box_of(i), clip, |c| {
-                counts[c].fetch_add(1, Ordering::Relaxed);
+        (0..n as u32)
+            .into_par_iter()
+            .with_min_len(PAR_MIN_PRIMS)
+            .for_each(|i| {
+                g.for_cells_of(i, &box_of(i), clip, |c| {
+                    counts[c].fetch_add(1, Ordering::Relaxed);
+                });
             });
-        });
-        let mut counts: Vec<u32> = counts.into_par_iter().map(AtomicU32::into_inner).collect();
+        let mut counts: Vec<u32> = counts
+            .into_par_iter()
+            .with_min_len(PAR_MIN)
+            .map(AtomicU32::into_inner)
+            .collect();
+        if let Some(most) = max_refs {
+            let refs: u64 = counts
+                .par_iter()
+                .with_min_len(PAR_MIN)
+                .map(|&c| u64::from(c))
+                .sum();
+            if refs > most {
+                return None;
+            }
+        }
         let mut total = 0u32;
         for c in counts.iter_mut() {
             let here = *c;
@@ -258,19 +337,31 @@ impl Grid {
                 .checked_add(here)
                 .expect("a grid of more than 2^32 cell references");
         }
-        let fill: Vec<AtomicU32> = counts.par_iter().map(|&c| AtomicU32::new(c)).collect();
+        let fill: Vec<AtomicU32> = counts
+            .par_iter()
+            .with_min_len(PAR_MIN)
+            .map(|&c| AtomicU32::new(c))
+            .collect();
         let prims: Vec<AtomicU32> = (0..total)
             .into_par_iter()
+            .with_min_len(PAR_MIN)
             .map(|_| AtomicU32::new(0))
             .collect();
-        (0..n as u32).into_par_iter().for_each(|i| {
-            g.for_cells_of(i, &box_of(i), clip, |c| {
-                let k = fill[c].fetch_add(1, Ordering::Relaxed);
-                prims[k as usize].store(i, Ordering::Relaxed);
+        (0..n as u32)
+            .into_par_iter()
+            .with_min_len(PAR_MIN_PRIMS)
+            .for_each(|i| {
+                g.for_cells_of(i, &box_of(i), clip, |c| {
+                    let k = fill[c].fetch_add(1, Ordering::Relaxed);
+                    prims[k as usize].store(i, Ordering::Relaxed);
+                });
             });
-        });
         drop(fill);
-        let mut prims: Vec<u32> = prims.into_par_iter().map(AtomicU32::into_inner).collect();
+        let mut prims: Vec<u32> = prims
+            .into_par_iter()
+            .with_min_len(PAR_MIN)
+            .map(AtomicU32::into_inner)
+            .collect();
         // Sort each cell's list, in parallel over runs of cells.
         const RUN: usize = 4096;
         let mut runs = Vec::with_capacity(ncells / RUN + 1);
@@ -292,7 +383,140 @@ impl Grid {
         g.clearance = clearance(&counts, res);
         g.cell_starts = counts;
         g.cell_prims = prims;
-        g
+        Some(g)
+    }
+
+    /// Gives each cell that lists [`BuildConfig::grid_subgrid_min`]
+    /// primitives or more, and [`BuildConfig::grid_subgrid_ratio`] times
+    /// as many as the cells that list any do on average, a grid of its
+    /// own over the part of the cell its
+    /// primitives fill, as many cells as [`BuildConfig::grid_density`]
+    /// asks for them (Jevans & Wyvill, "Adaptive voxel subdivision for ray
+    /// tracing", 1989; Kalojanov, Billeter & Slusallek, "Two-level grids
+    /// for ray tracing on GPUs", 2011). A uniform grid sizes its cells for
+    /// the whole scene, so a dense object in a large sparse scene (a
+    /// teapot in a stadium) falls in a few cells of thousands of
+    /// primitives each. A cell whose grid would list its primitives more
+    /// than [`SUBGRID_MAX_REFS`] times each (long primitives that cross
+    /// the whole cell, which a finer grid cannot separate) keeps its list.
+    ///
+    /// The cell's list becomes one entry, the index of its grid in
+    /// [`Self::subgrids`], and its clearance [`SUBGRID`]; the clearance of
+    /// the cells around is that of a listing cell, as before.
+    fn split_dense_cells(
+        &mut self,
+        box_of: &(dyn Fn(u32) -> Aabb + Sync),
+        clip: Option<&Clip<'_>>,
+        config: &BuildConfig,
+    ) {
+        let starts = &self.cell_starts;
+        let ncells = starts.len() - 1;
+        let listing = self
+            .clearance
+            .par_iter()
+            .with_min_len(PAR_MIN)
+            .filter(|&&c| c == 0)
+            .count();
+        let mean = self.cell_prims.len() as f64 / listing.max(1) as f64;
+        let min = (config.grid_subgrid_min as f64)
+            .max(f64::from(config.grid_subgrid_ratio) * mean)
+            .ceil()
+            .min(f64::from(u32::MAX)) as u32;
+        let dense: Vec<usize> = (0..ncells)
+            .into_par_iter()
+            .with_min_len(PAR_MIN)
+            .filter(|&c| starts[c + 1] - starts[c] >= min)
+            .collect();
+        let subs: Vec<(usize, Grid)> = dense
+            .into_par_iter()
+            .filter_map(|c| Some((c, self.subgrid(c, box_of, clip, config)?)))
+            .collect();
+        if subs.is_empty() {
+            return;
+        }
+        // The lists again, each dense cell's replaced by its grid's index:
+        // runs of cells between dense ones are copied whole, and their
+        // starts move down by what the dense cells before them gave up.
+        let old = std::mem::take(&mut self.cell_prims);
+        let mut prims = Vec::with_capacity(old.len());
+        // What the dense cells so far gave up, and the first cell whose
+        // start has not moved yet (the starts from it on are the old ones).
+        let mut removed = 0u32;
+        let mut next = 0usize;
+        for (k, (c, _)) in subs.iter().enumerate() {
+            let starts = &mut self.cell_starts;
+            let (a, b) = (starts[*c] as usize, starts[c + 1] as usize);
+            prims.extend_from_slice(&old[starts[next] as usize..a]);
+            prims.push(k as u32);
+            for s in &mut starts[next..=*c] {
+                *s -= removed;
+            }
+            removed += (b - a) as u32 - 1;
+            next = c + 1;
+        }
+        prims.extend_from_slice(&old[self.cell_starts[next] as usize..]);
+        for s in &mut self.cell_starts[next..] {
+            *s -= removed;
+        }
+        drop(old);
+        self.cell_prims = prims;
+        for (c, sub) in subs {
+            self.clearance[c] = SUBGRID;
+            self.subgrids.push(sub);
+        }
+        debug_assert_eq!(
+            self.cell_starts.last().map(|&s| s as usize),
+            Some(self.cell_prims.len())
+        );
+    }
+
+    /// The grid of cell `c`'s primitives (see [`Self::split_dense_cells`]),
+    /// over the part of the cell (padded as [`Self::cell_range`] pads it)
+    /// their boxes fill, listing each primitive by its box cut to that
+    /// part; `None` past [`SUBGRID_MAX_REFS`] references a primitive.
+    fn subgrid(
+        &self,
+        c: usize,
+        box_of: &(dyn Fn(u32) -> Aabb + Sync),
+        clip: Option<&Clip<'_>>,
+        config: &BuildConfig,
+    ) -> Option<Grid> {
+        let ids = &self.cell_prims[self.cell_starts[c] as usize..self.cell_starts[c + 1] as usize];
+        let (rx, ry) = (self.res[0] as usize, self.res[1] as usize);
+        let at = Vec3::new(
+            (c % rx) as f32,
+            (c / rx % ry) as f32,
+            (c / (rx * ry)) as f32,
+        );
+        let min = self.bounds.min + at * self.cell_size;
+        let pad = self.cell_size * 1e-3;
+        let cell = Aabb::new(min - pad, min + self.cell_size + pad);
+        let within = ids
+            .iter()
+            .fold(Aabb::EMPTY, |b, &i| b.union(box_of(i)))
+            .intersection(cell);
+        if within.is_empty() {
+            // (Each box reaches into the padded cell, or it would not be
+            // listed there: this is for boxes of NaN.)
+            return None;
+        }
+        let local_box = |j: u32| box_of(ids[j as usize]).intersection(within);
+        let local_clip =
+            clip.map(|clip| move |j: u32, w, axis, pos| clip(ids[j as usize], w, axis, pos));
+        let mut sub = Self::build_level(
+            ids.len(),
+            &local_box,
+            local_clip.as_ref().map(|f| f as &Clip<'_>),
+            within,
+            config,
+            Some(SUBGRID_MAX_REFS * ids.len() as u64),
+        )?;
+        // Local indices to the primitives' own: `ids` is in increasing
+        // order, so each cell's list stays so.
+        for p in &mut sub.cell_prims {
+            *p = ids[*p as usize];
+        }
+        Some(sub)
     }
 
     /// Cells per axis.
@@ -415,7 +639,29 @@ impl Grid {
         (l, h)
     }
 
+    /// The grid's cells and lists, its cells' grids included: a cell of
+    /// each is a node, a cell that lists primitives a leaf, and the SAH
+    /// cost adds each cell's grid weighted by the chance that a ray
+    /// through the grid meets its box.
     pub(crate) fn stats(&self) -> AccelStats {
+        let mut s = self.level_stats();
+        let root_area = self.bounds.half_area() as f64;
+        for sub in &self.subgrids {
+            let t = sub.level_stats();
+            s.nodes += t.nodes;
+            // The cell that held the grid lists none itself.
+            s.leaves += t.leaves - 1;
+            s.bytes += t.bytes;
+            s.depth = 2;
+            if root_area > 0.0 {
+                s.sah_cost += t.sah_cost * sub.bounds.half_area() as f64 / root_area;
+            }
+        }
+        s
+    }
+
+    /// [`Self::stats`] of this level's cells alone.
+    fn level_stats(&self) -> AccelStats {
         let ncells = self.cell_starts.len().saturating_sub(1);
         let nonempty = self.cell_starts.windows(2).filter(|w| w[1] > w[0]).count();
         let root_area = self.bounds.half_area() as f64;
@@ -447,13 +693,47 @@ impl Grid {
         self.traverse_lists(ray, counter, &mut each_id(ray, leaf));
     }
 
+    /// Whether some cell has a grid of its own ([`Self::subgrids`]).
+    pub(crate) fn two_level(&self) -> bool {
+        !self.subgrids.is_empty()
+    }
+
     /// Cell-by-cell traversal calling `list(ids)` with the primitives of
     /// each cell not yet tested for this ray, up to [`BLOCK`] at a time;
     /// it returns the ray's new upper bound (below `tmin` stops), so that
     /// a caller can test them together
-    /// ([`crate::Primitives::intersect_ids`]).
+    /// ([`crate::Primitives::intersect_ids`]). [`Self::walk`] through one
+    /// level or two, as the grid has.
     #[inline]
     pub(crate) fn traverse_lists<C: RayCounter>(
+        &self,
+        ray: &Ray,
+        counter: &mut C,
+        list: &mut impl FnMut(&[u32]) -> f32,
+    ) {
+        if self.two_level() {
+            self.walk::<true, C>(ray, counter, list);
+        } else {
+            self.walk::<false, C>(ray, counter, list);
+        }
+    }
+
+    /// [`Self::traverse_lists`] through the cells of the top grid alone
+    /// (`TWO` false: for a grid without [`Self::subgrids`]) or through
+    /// the cells' own grids too.
+    ///
+    /// A cell with a grid of its own is walked through that grid's cells,
+    /// from where the ray enters the part of the cell they cover, and
+    /// then the walk goes on from the cell. One loop walks both levels, a
+    /// [`Cursor`] for the grid it is in (the top one's kept aside
+    /// meanwhile), so that the test of the cells' primitives, which the
+    /// AVX2 walks inline, appears once in it. The walk of one level
+    /// leaves the steps into cells' grids out: the cursor's grid never
+    /// changes there, so the walk keeps what it reads of it in registers
+    /// (with them, the walk took 3.7% more instructions a ray on the
+    /// dragon's primary rays, callgrind, though no cell had a grid).
+    #[inline(always)]
+    pub(crate) fn walk<const TWO: bool, C: RayCounter>(
         &self,
         ray: &Ray,
         counter: &mut C,
@@ -462,34 +742,25 @@ impl Grid {
         let Some((t_enter, _)) = self.bounds.intersect_ray(ray, ray.tmax()) else {
             return;
         };
-        self.dda(ray, t_enter, counter, list);
-    }
-
-    #[inline(always)]
-    fn dda<C: RayCounter>(
-        &self,
-        ray: &Ray,
-        t_enter: f32,
-        counter: &mut C,
-        list: &mut impl FnMut(&[u32]) -> f32,
-    ) {
         // The ray's mailbox: the primitives it has tested, each in slot
         // `index % MAILBOX_SLOTS` (as its index plus one; 0 is empty), so
         // that a primitive listed in several cells is tested once, unless
         // another took its slot in between (then it is tested again, with
-        // the same answer).
+        // the same answer). Shared by both levels.
         let mut tested = [0u32; MAILBOX_SLOTS];
-        let (d, p) = (ray.dir(), ray.at(t_enter));
+        let d = ray.dir();
         // Arrays, not `Vec3`s: `Vec3`'s `Index` is a `match` on the axis,
-        // which changes from step to step, and mispredicted (as in the
-        // k-d tree's walk).
-        let (o, inv) = (ray.origin().to_array(), ray.inv_dir().to_array());
-        let (lo, size) = (self.bounds.min.to_array(), self.cell_size.to_array());
-        let mut cell = [0u32; 3];
-        let mut step = [0i32; 3];
+        // which changes from step to step, and mispredicted (as in the k-d
+        // tree's walk).
+        let mut axes = Axes {
+            o: ray.origin().to_array(),
+            inv: ray.inv_dir().to_array(),
+            step: [0; 3],
+        };
+        // Loops, not `[0, 1, 2].map(..)`, here and in `Cursor::start`
+        // (see `Cursor::skip`).
         for a in 0..3 {
-            cell[a] = self.cell_of(p, a);
-            step[a] = if d[a] > 0.0 {
+            axes.step[a] = if d[a] > 0.0 {
                 1
             } else if d[a] < 0.0 {
                 -1
@@ -497,35 +768,9 @@ impl Grid {
                 0
             };
         }
-        // What a step along each axis adds to the cell's index (wrapping:
-        // a step down adds the stride's negation).
-        let stride = [
-            1usize,
-            self.res[0] as usize,
-            self.res[0] as usize * self.res[1] as usize,
-        ];
-        let delta = [0, 1, 2].map(|a| {
-            if step[a] < 0 {
-                stride[a].wrapping_neg()
-            } else {
-                stride[a]
-            }
-        });
-        let mut c = self.cell_index(cell);
-        // Exit distance of the current cell on each axis, computed from the
-        // boundary itself (not accumulated) so it does not drift.
-        let boundary_t = |a: usize, c: u32| -> f32 {
-            if step[a] == 0 {
-                return f32::INFINITY;
-            }
-            let edge = c + (step[a] > 0) as u32;
-            (lo[a] + edge as f32 * size[a] - o[a]) * inv[a]
-        };
-        let mut next = [
-            boundary_t(0, cell[0]),
-            boundary_t(1, cell[1]),
-            boundary_t(2, cell[2]),
-        ];
+        let mut at = Cursor::start(self, &axes, ray.at(t_enter));
+        // The top grid's cursor while the walk is in a cell's own grid.
+        let mut top: Option<Cursor<'_>> = None;
         // `cull_bound` of the best hit's `t` so far, updated where it
         // changes (after a cell's tests) rather than at every step.
         let mut bound = cull_bound(ray.tmax());
@@ -537,40 +782,24 @@ impl Grid {
             // that list anything did the same before, 85e07a5: random
             // rays on bunny00 subdivided twice, 1.2M triangles,
             // 1.16-1.57x), and how far the empty space around reaches.
-            let clear = self.clearance[c];
+            let (g, c) = (at.grid, at.c);
+            let clear = g.clearance[c];
             let here: &[u32] = if clear == 0 {
-                &self.cell_prims[self.cell_starts[c] as usize..self.cell_starts[c + 1] as usize]
+                &g.cell_prims[g.cell_starts[c] as usize..g.cell_starts[c + 1] as usize]
+            } else if TWO && clear == SUBGRID {
+                // The cell's own grid (only the top grid's cells have
+                // one), from where the ray enters the part of the cell
+                // its primitives fill; a miss: the ray meets none of them
+                // in this cell.
+                let sub = &g.subgrids[g.cell_prims[g.cell_starts[c] as usize] as usize];
+                if let Some(inner) = Cursor::enter(sub, ray, &axes, bound) {
+                    top = Some(std::mem::replace(&mut at, inner));
+                    continue;
+                }
+                &[]
             } else {
                 if clear >= MIN_SKIP {
-                    // Every cell fewer than `clear` cells away is empty:
-                    // the walk moves to the last of them the ray reaches,
-                    // taking every crossing before it leaves them, as the
-                    // steps below would (the same cells and distances,
-                    // whatever the order), and the step below goes on
-                    // from there. `boundary_t` grows along an axis, so no
-                    // axis passes its last cell of them, nor the grid's.
-                    let r = u32::from(clear) - 1;
-                    // Written out per axis: as `[0, 1, 2].map(..)` it
-                    // was a call, which made the walk spill its values.
-                    let last = |a: usize| {
-                        if step[a] > 0 {
-                            (cell[a] + r).min(self.res[a] - 1)
-                        } else {
-                            cell[a].saturating_sub(r)
-                        }
-                    };
-                    let exit = f32::INFINITY
-                        .min(boundary_t(0, last(0)))
-                        .min(boundary_t(1, last(1)))
-                        .min(boundary_t(2, last(2)));
-                    for a in 0..3 {
-                        while next[a] < exit {
-                            cell[a] = cell[a].wrapping_add_signed(step[a]);
-                            c = c.wrapping_add(delta[a]);
-                            next[a] = boundary_t(a, cell[a]);
-                        }
-                    }
-                    debug_assert_eq!(c, self.cell_index(cell));
+                    at.skip(&axes, clear);
                 }
                 &[]
             };
@@ -608,33 +837,180 @@ impl Grid {
                 }
                 bound = cull_bound(tmax);
             }
-            let a = if next[0] <= next[1] && next[0] <= next[2] {
-                0
-            } else if next[1] <= next[2] {
-                1
-            } else {
-                2
-            };
-            let exit = next[a];
-            // Any closer hit would lie in a cell already visited.
-            if bound < exit || exit.is_infinite() {
-                return;
-            }
-            if step[a] > 0 {
-                if cell[a] + 1 >= self.res[a] {
-                    return;
+            // The next cell, or back in the top grid once the ray leaves a
+            // cell's grid (or the bound ends the walk there), to step on
+            // from that cell (or end too).
+            while !at.step(&axes, bound) {
+                match top.take() {
+                    Some(t) => at = t,
+                    None => return,
                 }
-                cell[a] += 1;
-            } else {
-                if cell[a] == 0 {
-                    return;
-                }
-                cell[a] -= 1;
             }
-            c = c.wrapping_add(delta[a]);
-            debug_assert_eq!(c, self.cell_index(cell));
-            next[a] = boundary_t(a, cell[a]);
         }
+    }
+}
+
+/// What a ray's walk through grid cells keeps of it: its origin, the
+/// reciprocals of its direction, and the way it steps along each axis.
+struct Axes {
+    o: [f32; 3],
+    inv: [f32; 3],
+    step: [i32; 3],
+}
+
+/// A ray's place in one grid's cells (3D-DDA, Amanatides & Woo): its cell,
+/// by coordinates and by index, and the distance at which it leaves the
+/// cell along each axis.
+struct Cursor<'g> {
+    grid: &'g Grid,
+    lo: [f32; 3],
+    size: [f32; 3],
+    /// What a step along each axis adds to the cell's index (wrapping: a
+    /// step down adds the stride's negation).
+    delta: [usize; 3],
+    cell: [u32; 3],
+    c: usize,
+    next: [f32; 3],
+}
+
+impl<'g> Cursor<'g> {
+    /// The cursor in `grid`'s cell of point `p` on the ray (clamped into
+    /// the grid).
+    #[inline(always)]
+    fn start(grid: &'g Grid, axes: &Axes, p: Vec3) -> Self {
+        let res = grid.res;
+        let stride = [1usize, res[0] as usize, res[0] as usize * res[1] as usize];
+        let mut cur = Self {
+            grid,
+            lo: grid.bounds.min.to_array(),
+            size: grid.cell_size.to_array(),
+            delta: stride,
+            cell: [0; 3],
+            c: 0,
+            next: [0.0; 3],
+        };
+        for a in 0..3 {
+            cur.cell[a] = grid.cell_of(p, a);
+            if axes.step[a] < 0 {
+                cur.delta[a] = stride[a].wrapping_neg();
+            }
+        }
+        cur.c = grid.cell_index(cur.cell);
+        // Written out per axis (see `skip`).
+        cur.next = [
+            cur.boundary_t(axes, 0, cur.cell[0]),
+            cur.boundary_t(axes, 1, cur.cell[1]),
+            cur.boundary_t(axes, 2, cur.cell[2]),
+        ];
+        cur
+    }
+
+    /// Exit distance of cell `k` along axis `a`, computed from the
+    /// boundary itself (not accumulated) so it does not drift.
+    #[inline(always)]
+    fn boundary_t(&self, axes: &Axes, a: usize, k: u32) -> f32 {
+        if axes.step[a] == 0 {
+            return f32::INFINITY;
+        }
+        let edge = k + (axes.step[a] > 0) as u32;
+        (self.lo[a] + edge as f32 * self.size[a] - axes.o[a]) * axes.inv[a]
+    }
+
+    /// Every cell fewer than `clear` cells away is empty: the walk moves
+    /// to the last of them the ray reaches, taking every crossing before
+    /// it leaves them, as the steps would (the same cells and distances,
+    /// whatever the order), and the step after goes on from there.
+    /// `boundary_t` grows along an axis, so no axis passes its last cell
+    /// of them, nor the grid's.
+    #[inline(always)]
+    fn skip(&mut self, axes: &Axes, clear: u8) {
+        let r = u32::from(clear) - 1;
+        let res = self.grid.res;
+        // Written out per axis: as `[0, 1, 2].map(..)` it was a call,
+        // which made the walk spill its values.
+        let last = |a: usize| {
+            if axes.step[a] > 0 {
+                (self.cell[a] + r).min(res[a] - 1)
+            } else {
+                self.cell[a].saturating_sub(r)
+            }
+        };
+        let exit = f32::INFINITY
+            .min(self.boundary_t(axes, 0, last(0)))
+            .min(self.boundary_t(axes, 1, last(1)))
+            .min(self.boundary_t(axes, 2, last(2)));
+        for a in 0..3 {
+            while self.next[a] < exit {
+                self.cell[a] = self.cell[a].wrapping_add_signed(axes.step[a]);
+                self.c = self.c.wrapping_add(self.delta[a]);
+                self.next[a] = self.boundary_t(axes, a, self.cell[a]);
+            }
+        }
+        debug_assert_eq!(self.c, self.grid.cell_index(self.cell));
+    }
+
+    /// The cursor where the ray enters `grid` (a cell's own grid, see
+    /// [`Grid::traverse_lists`]) before `bound`, if it does. Out of line:
+    /// it is seldom called.
+    #[inline(never)]
+    fn enter(grid: &'g Grid, ray: &Ray, axes: &Axes, bound: f32) -> Option<Self> {
+        let (t0, _) = grid.bounds.intersect_ray(ray, bound)?;
+        Some(Self::start(grid, axes, ray.at(t0)))
+    }
+
+    /// Steps to the next cell along the ray; false where the walk through
+    /// this grid ends: the ray leaves it, or the cell's exit lies beyond
+    /// `bound` (any closer hit would lie in a cell already visited).
+    #[inline(always)]
+    fn step(&mut self, axes: &Axes, bound: f32) -> bool {
+        // (Read in place: a copy of the three was a store and loads a
+        // step, 9% of the dragon's primary rays.)
+        let next = &self.next;
+        let a = if next[0] <= next[1] && next[0] <= next[2] {
+            0
+        } else if next[1] <= next[2] {
+            1
+        } else {
+            2
+        };
+        let exit = next[a];
+        if bound < exit || exit.is_infinite() {
+            return false;
+        }
+        if axes.step[a] > 0 {
+            if self.cell[a] + 1 >= self.grid.res[a] {
+                return false;
+            }
+            self.cell[a] += 1;
+        } else {
+            if self.cell[a] == 0 {
+                return false;
+            }
+            self.cell[a] -= 1;
+        }
+        self.c = self.c.wrapping_add(self.delta[a]);
+        debug_assert_eq!(self.c, self.grid.cell_index(self.cell));
+        self.next[a] = self.boundary_t(axes, a, self.cell[a]);
+        true
+    }
+}
+
+/// A grid walked through one level of cells or two ([`Grid::walk`]),
+/// fixed where the walk is compiled: the AVX2 walks take one or the other
+/// in a region of its own (both in one made the region too large for
+/// LLVM to inline the kernels into).
+pub(crate) struct Levels<'a, const TWO: bool>(pub(crate) &'a Grid);
+
+impl<const TWO: bool> Levels<'_, TWO> {
+    /// [`Grid::walk`].
+    #[inline(always)]
+    pub(crate) fn traverse_lists<C: RayCounter>(
+        &self,
+        ray: &Ray,
+        counter: &mut C,
+        list: &mut impl FnMut(&[u32]) -> f32,
+    ) {
+        self.0.walk::<TWO, C>(ray, counter, list);
     }
 }
 
@@ -781,7 +1157,9 @@ mod tests {
         );
         let mut no_skips = g.clone();
         for c in &mut no_skips.clearance {
-            *c = (*c).min(1);
+            if *c != SUBGRID {
+                *c = (*c).min(1);
+            }
         }
         (g, no_skips)
     }
@@ -868,29 +1246,171 @@ mod tests {
         }
     }
 
+    /// The default settings, but a grid of its own in every cell of 64
+    /// primitives or more, however full the others are.
+    fn split_config() -> BuildConfig {
+        BuildConfig {
+            grid_subgrid_ratio: 0.0,
+            ..BuildConfig::default()
+        }
+    }
+
+    /// Every level's cell lists, the top grid's first, each cell's by
+    /// its index.
+    fn levels(g: &Grid) -> Vec<(&[u32], &[u32])> {
+        std::iter::once(g)
+            .chain(&g.subgrids)
+            .map(|g| (&g.cell_starts[..], &g.cell_prims[..]))
+            .collect()
+    }
+
     /// The parallel passes give the cell lists of a one-thread build:
-    /// each cell's primitives in increasing order, whatever the threads.
+    /// each cell's primitives in increasing order, whatever the threads,
+    /// in the top grid and in the cells' own grids; every primitive is
+    /// listed somewhere.
     #[test]
     fn parallel_build_is_identical_to_sequential() {
         let b = crate::test_util::clustered_boxes(20_000);
-        let config = BuildConfig::default();
-        let build = |threads| {
-            let pool = crate::test_util::pool(threads);
-            pool.install(|| Grid::build(&b, &config))
-        };
-        let one = build(1);
-        assert!(one.cell_prims.len() >= b.len());
-        for (c, w) in one.cell_starts.windows(2).enumerate() {
-            let cell = &one.cell_prims[w[0] as usize..w[1] as usize];
-            assert!(
-                cell.windows(2).all(|p| p[0] < p[1]),
-                "cell {c} out of order"
+        for config in [
+            split_config(),
+            BuildConfig {
+                grid_subgrid_min: 0,
+                ..BuildConfig::default()
+            },
+        ] {
+            let build = |threads| {
+                let pool = crate::test_util::pool(threads);
+                pool.install(|| Grid::build(&b, &config))
+            };
+            let one = build(1);
+            assert_eq!(
+                one.subgrids.is_empty(),
+                config.grid_subgrid_min == 0,
+                "{} cells' grids",
+                one.subgrids.len()
             );
+            let mut listed = vec![false; b.len()];
+            for (level, (starts, prims)) in levels(&one).into_iter().enumerate() {
+                for (c, w) in starts.windows(2).enumerate() {
+                    let cell = &prims[w[0] as usize..w[1] as usize];
+                    assert!(
+                        cell.windows(2).all(|p| p[0] < p[1]),
+                        "cell {c} of level {level} out of order"
+                    );
+                    if level > 0 || one.clearance[c] != SUBGRID {
+                        for &p in cell {
+                            listed[p as usize] = true;
+                        }
+                    }
+                }
+            }
+            assert!(listed.iter().all(|&l| l), "a primitive listed nowhere");
+            for threads in [2, 4] {
+                let many = build(threads);
+                assert_eq!(levels(&many), levels(&one), "{threads} threads");
+                assert_eq!(many.clearance, one.clearance);
+            }
         }
-        for threads in [2, 4] {
-            let many = build(threads);
-            assert_eq!(many.cell_starts, one.cell_starts);
-            assert_eq!(many.cell_prims, one.cell_prims, "{threads} threads");
+    }
+
+    /// Clusters of a few thousand boxes each fill a few cells of a grid
+    /// sized for their whole diagonal: those cells get grids of their
+    /// own (with the default settings, none: the cells that list anything
+    /// are all about as full), and each box's part in such a cell lies in
+    /// cells of its grid that list it (points sampled over the part,
+    /// corners included). The cells of the top grid keep their
+    /// clearance, a subgrid's cell counting as one that lists.
+    #[test]
+    fn dense_cells_get_grids_of_their_own() {
+        let b = crate::test_util::clustered_boxes(20_000);
+        let even = Grid::build(&b, &BuildConfig::default());
+        assert!(even.subgrids.is_empty(), "{}", even.subgrids.len());
+        let g = Grid::build(&b, &split_config());
+        let flat = Grid::build(
+            &b,
+            &BuildConfig {
+                grid_subgrid_min: 0,
+                ..BuildConfig::default()
+            },
+        );
+        assert!(!g.subgrids.is_empty());
+        for (c, (&cl, &fl)) in g.clearance.iter().zip(&flat.clearance).enumerate() {
+            let n = flat.cell_starts[c + 1] - flat.cell_starts[c];
+            if cl == SUBGRID {
+                assert!(n as usize >= BuildConfig::default().grid_subgrid_min);
+                assert_eq!(g.cell_starts[c + 1] - g.cell_starts[c], 1);
+            } else {
+                assert_eq!(cl, fl, "cell {c}");
+                assert_eq!(
+                    &g.cell_prims[g.cell_starts[c] as usize..g.cell_starts[c + 1] as usize],
+                    &flat.cell_prims
+                        [flat.cell_starts[c] as usize..flat.cell_starts[c + 1] as usize]
+                );
+            }
         }
+        let mut next = crate::test_util::xorshift(0x0bad_cafe);
+        for (c, &cl) in g.clearance.iter().enumerate() {
+            if cl != SUBGRID {
+                continue;
+            }
+            let sub = &g.subgrids[g.cell_prims[g.cell_starts[c] as usize] as usize];
+            let (rx, ry) = (g.res[0] as usize, g.res[1] as usize);
+            let at = Vec3::new(
+                (c % rx) as f32,
+                (c / rx % ry) as f32,
+                (c / (rx * ry)) as f32,
+            );
+            let cell = Aabb::new(
+                g.bounds.min + at * g.cell_size,
+                g.bounds.min + (at + 1.0) * g.cell_size,
+            );
+            for &i in
+                &flat.cell_prims[flat.cell_starts[c] as usize..flat.cell_starts[c + 1] as usize]
+            {
+                let part = b[i as usize].intersection(cell);
+                if part.is_empty() {
+                    continue; // listed for the padding only
+                }
+                for k in 0..10 {
+                    let f = if k < 8 {
+                        Vec3::new((k & 1) as f32, (k >> 1 & 1) as f32, (k >> 2) as f32)
+                    } else {
+                        Vec3::new(next(), next(), next())
+                    };
+                    let q = part.min + part.extent() * f;
+                    assert!(
+                        lists(sub, q, i),
+                        "box {i} missing from cell {c}'s grid at {q}"
+                    );
+                }
+            }
+        }
+        // A ray through the clusters meets the cells' grids.
+        let ray = Ray::infinite(Vec3::splat(-1.0), Vec3::ONE);
+        let (lists_two, cells_two) = walk(&g, &ray);
+        let (lists_one, _) = walk(&flat, &ray);
+        assert!(cells_two > 0 && !lists_two.is_empty() && !lists_one.is_empty());
+    }
+
+    /// A cell crossed whole by many long boxes keeps its list, however
+    /// full the others are: a finer grid would list each of them in all
+    /// of its cells.
+    #[test]
+    fn cells_of_long_boxes_keep_their_lists() {
+        let mut b: Vec<Aabb> = (0..200)
+            .map(|i| {
+                let y = i as f32 * 1e-4;
+                Aabb::new(Vec3::new(0.0, 0.5 + y, 0.0), Vec3::new(10.0, 0.5 + y, 10.0))
+            })
+            .collect();
+        // Small boxes elsewhere, for a grid of many cells.
+        let mut next = crate::test_util::xorshift(0x5eed_1234);
+        b.extend((0..2000).map(|_| {
+            let p = Vec3::new(next(), next() * 0.3 + 2.0, next()) * 10.0;
+            Aabb::new(p, p + Vec3::splat(0.01))
+        }));
+        let g = Grid::build(&b, &split_config());
+        assert!(g.res.iter().product::<u32>() > 100, "{:?} cells", g.res);
+        assert!(g.subgrids.is_empty(), "{} cells' grids", g.subgrids.len());
     }
 }

@@ -573,7 +573,8 @@ impl<P: Primitives> Scene<P> {
             };
         }
         match &self.accel {
-            Accel::Grid(g) => region!(g),
+            Accel::Grid(g) if g.two_level() => region!(crate::grid::Levels::<true>(g)),
+            Accel::Grid(g) => region!(crate::grid::Levels::<false>(g)),
             Accel::KdTree(k) => region!(k),
             _ if ANY => self.any_general(ray, counter),
             _ => self.closest_general(ray, counter),

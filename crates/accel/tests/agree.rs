@@ -53,9 +53,21 @@ fn optimized() -> [(AccelKind, BuildConfig); 5] {
     ]
 }
 
+/// The grid with a grid of its own in every cell that lists two
+/// primitives or more, however full the others are (the default asks for
+/// 64 and four times the mean, which small inputs seldom reach): the walk
+/// through both levels on every input.
+fn two_level() -> BuildConfig {
+    BuildConfig {
+        grid_subgrid_min: 2,
+        grid_subgrid_ratio: 0.0,
+        ..BuildConfig::default()
+    }
+}
+
 /// Every kind with default settings, then the spatial-split kinds with
-/// [`spatial`], then the [`optimized`] builds, each with how to name it in
-/// a failure.
+/// [`spatial`], then the [`optimized`] builds, then the [`two_level`]
+/// grid, each with how to name it in a failure.
 fn builds() -> impl Iterator<Item = (AccelKind, BuildConfig, &'static str)> {
     KINDS
         .into_iter()
@@ -70,6 +82,11 @@ fn builds() -> impl Iterator<Item = (AccelKind, BuildConfig, &'static str)> {
                 .into_iter()
                 .map(|(k, c)| (k, c, " optimized by reinsertion")),
         )
+        .chain([(
+            AccelKind::Grid,
+            two_level(),
+            " with a grid in each cell of two primitives or more",
+        )])
 }
 
 /// [`hit_bits`] without the normal.
@@ -303,6 +320,64 @@ fn real_meshes() {
             rays.len()
         );
     }
+}
+
+/// A dense mesh on a floor a hundred times its size (a teapot in a
+/// stadium): the grid sizes its cells for the floor, gives the few cells
+/// that hold the mesh grids of their own (two levels, with the default
+/// settings), and answers as brute force does, as every structure does,
+/// for rays at the mesh from near and from across the floor, at its
+/// vertices and edges, from inside its box, along the axes and along the
+/// floor.
+#[test]
+fn dense_mesh_in_a_large_scene() {
+    let m = load("elephant-with-holes.off");
+    let b = m.positions.iter().fold(Aabb::EMPTY, |a, p| a.grow(*p));
+    let scale = 2.0 / b.extent().max_element();
+    let positions: Vec<Vec3> = m
+        .positions
+        .iter()
+        .map(|p| (*p - b.centroid()) * scale)
+        .collect();
+    let dense = TriangleMesh::new(positions.clone(), m.triangles.clone());
+    let floor_y = positions.iter().map(|p| p.y).fold(f32::INFINITY, f32::min);
+    // 20 x 20 squares of 10 units, two triangles each, the mesh standing
+    // on the middle.
+    let (mut all_pos, mut all_tris) = (positions, m.triangles.clone());
+    for i in 0..20 {
+        for k in 0..20 {
+            let at =
+                |x: i32, z: i32| Vec3::new((x - 10) as f32 * 10.0, floor_y, (z - 10) as f32 * 10.0);
+            let v = all_pos.len() as u32;
+            all_pos.extend([at(i, k), at(i + 1, k), at(i + 1, k + 1), at(i, k + 1)]);
+            all_tris.extend([[v, v + 1, v + 2], [v, v + 2, v + 3]]);
+        }
+    }
+    let scene = TriangleMesh::new(all_pos, all_tris);
+    let grid = Scene::build(scene.clone(), AccelKind::Grid).stats();
+    assert_eq!(grid.depth, 2, "the grid gave no cell a grid: {grid:?}");
+    let mut rays = mesh_rays(&dense, 200, 11);
+    let mut rng = Lcg(5);
+    for _ in 0..200 {
+        // From across the floor, at the mesh, and grazing the floor.
+        let o = Vec3::new(
+            rng.next() * 180.0 - 90.0,
+            rng.next() * 5.0 + floor_y,
+            rng.next() * 180.0 - 90.0,
+        );
+        let target = rng.unit();
+        rays.push(Ray::infinite(o, target - o));
+        rays.push(Ray::infinite(
+            Vec3::new(o.x, floor_y, o.z),
+            Vec3::new(-o.x, 0.0, -o.z),
+        ));
+    }
+    let hits = check_mesh(&scene, &rays);
+    assert!(
+        hits > rays.len() / 2,
+        "only {hits} of {} rays hit",
+        rays.len()
+    );
 }
 
 #[test]

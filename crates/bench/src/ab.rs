@@ -110,7 +110,8 @@ struct Args {
     /// Build settings of this build, `KEY=VALUE` comma-separated, over
     /// the defaults (and `--spatial-splits`, `--optimize`): `max_leaf`,
     /// `traversal_cost`, `bins`, `leaf_block`, `grid_density`,
-    /// `spatial_splits`, `optimize`. With `--baseline-set` and no
+    /// `grid_subgrid_min`, `grid_subgrid_ratio`, `spatial_splits`,
+    /// `optimize`. With `--baseline-set` and no
     /// `--baseline`, one binary compares two settings.
     #[arg(long, value_name = "KEY=VALUE,...")]
     set: Option<String>,
@@ -231,12 +232,15 @@ fn config(args: &Args, set: Option<&str>) -> Result<BuildConfig> {
                     config.leaf_block = Some(n);
                 }
             }
+            "grid_subgrid_min" => {
+                config.grid_subgrid_min = value.parse().with_context(|| bad("a count"))?;
+            }
             "bins" => {
                 let n: usize = value.parse().with_context(|| bad("a count"))?;
                 ensure!((2..=64).contains(&n), "{}", bad("between 2 and 64"));
                 config.bins = n;
             }
-            "traversal_cost" | "grid_density" | "spatial_splits" => {
+            "traversal_cost" | "grid_density" | "grid_subgrid_ratio" | "spatial_splits" => {
                 let x: f32 = value.parse().with_context(|| bad("a number"))?;
                 ensure!(
                     x.is_finite() && x >= 0.0,
@@ -246,6 +250,7 @@ fn config(args: &Args, set: Option<&str>) -> Result<BuildConfig> {
                 match key {
                     "traversal_cost" => config.traversal_cost = x,
                     "grid_density" => config.grid_density = x,
+                    "grid_subgrid_ratio" => config.grid_subgrid_ratio = x,
                     _ => config.spatial_splits = x,
                 }
             }
@@ -254,7 +259,8 @@ fn config(args: &Args, set: Option<&str>) -> Result<BuildConfig> {
             }
             _ => bail!(
                 "unknown setting '{key}'; expected max_leaf, traversal_cost, bins, \
-                 leaf_block, grid_density, spatial_splits or optimize"
+                 leaf_block, grid_density, grid_subgrid_min, grid_subgrid_ratio, \
+                 spatial_splits or optimize"
             ),
         }
     }

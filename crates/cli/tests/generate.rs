@@ -94,7 +94,8 @@ fn generate_writes_meshes_of_the_asked_size() {
 }
 
 /// Rays framed on the teapot mostly hit it, and the grid (the structure
-/// this scene is hard for) still returns what brute force returns.
+/// this scene is hard for) still returns what brute force returns, through
+/// the grids of the teapot's cells.
 #[test]
 fn rays_framed_on_the_teapot_hit_it_and_agree() {
     let dir = tmpdir("frame");
@@ -140,8 +141,10 @@ fn rays_framed_on_the_teapot_hit_it_and_agree() {
     }
     assert!(hits[1] == hits[0] && hits[2] == hits[0]);
 
-    // The benchmark shows the trade-off: aimed at the teapot, the grid
-    // tests far more triangles a ray than the BVH (counts, not times).
+    // The benchmark shows what the grid's second level buys: aimed at the
+    // teapot, a grid of one level, its cells sized for the stadium, tested
+    // 1,531 triangles a ray here, over 100 times the BVH's 12; the teapot's
+    // cells' own grids bring that to 58 (counts, not times).
     let out = run_ok(
         raymesh()
             .arg("bench")
@@ -175,7 +178,7 @@ fn rays_framed_on_the_teapot_hit_it_and_agree() {
         })
         .collect();
     let of = |a: &str| per_ray.iter().find(|r| r.0 == a).unwrap().1;
-    assert!(of("grid") > 10.0 * of("bvh8"), "{per_ray:?}");
+    assert!(of("grid") < 10.0 * of("bvh8"), "{per_ray:?}");
 
     for bad in ["1,2,3", "1,0,0,0,1,1", "a,b,c,d,e,f", "0,0,0,1,1,inf"] {
         fails_with(
