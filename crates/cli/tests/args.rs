@@ -51,6 +51,53 @@ fn commands_refuse_bad_counts() {
 /// `raymesh-peers` has no form of are refused, not dropped; a missing
 /// `raymesh-peers` is an error that says how to build it.
 #[cfg(unix)]
+/// A negative count or size is a value out of range, named with its flag,
+/// not an unknown flag: clap took `--sizes -1` for a flag `-1` ("unexpected
+/// argument '-1' found"), on every numeric flag of every command.
+#[test]
+fn negative_numbers_are_values_out_of_range() {
+    let mesh = data("tetrahedron.off");
+    let m = mesh.to_str().unwrap();
+    let cases: [(&[&str], &str); 12] = [
+        (&["scale", "--sizes", "-1"], "--sizes: -1 is not within"),
+        (&["scale", "--threads", "-2"], "--threads:"),
+        (&["scale", "--size", "-3"], "'--size <SIZE>'"),
+        (&["bench", m, "--repeat", "-1"], "'--repeat <REPEAT>'"),
+        (&["bench", m, "--threads", "-1"], "--threads:"),
+        (
+            &["raycast", m, "--rays", "r.npy", "--threads", "-1"],
+            "'--threads <THREADS>'",
+        ),
+        (
+            &["raycast", m, "--rays", "r.npy", "--spatial-splits", "-0.5"],
+            "--spatial-splits",
+        ),
+        (
+            &["rays", m, "--size", "-16", "-o", "r.npy"],
+            "'--size <SIZE>'",
+        ),
+        (&["render", "--width", "-640"], "'--width <WIDTH>'"),
+        (&["render", "--spp", "-1"], "'--spp <SPP>'"),
+        (
+            &["generate", "terrain", "--triangles", "-5", "-o", "t.ply"],
+            "'--triangles <TRIANGLES>'",
+        ),
+        (
+            &["subdivide", m, "--levels", "-1", "-o", "s.off"],
+            "'--levels <LEVELS>'",
+        ),
+    ];
+    for (args, needle) in cases {
+        let out = raymesh().args(args).output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{args:?} succeeded");
+        assert!(
+            err.contains(needle) && !err.contains("unexpected argument"),
+            "{args:?}: {needle:?} not in {err}"
+        );
+    }
+}
+
 #[test]
 fn bench_hands_peers_to_raymesh_peers() {
     use std::os::unix::fs::PermissionsExt;

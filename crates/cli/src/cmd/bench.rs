@@ -33,13 +33,13 @@ pub struct Args {
     #[arg(long, default_value = "primary,random,diffuse,shadow")]
     pub workloads: String,
     /// Image width and height of the workloads (random: the square root of the ray count).
-    #[arg(long, default_value_t = 1024, value_parser = clap::value_parser!(u32).range(1..=8192))]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1024, value_parser = clap::value_parser!(u32).range(1..=8192))]
     pub size: u32,
     /// Thread counts, comma-separated, each 1 to 1024 (default: 1 and all cores).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub threads: Option<String>,
     /// Timed repeats; the best is reported.
-    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..))]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..))]
     pub repeat: u32,
     /// Aim the workloads at this box instead of each mesh's whole box:
     /// `minx,miny,minz,maxx,maxy,maxz` (as `raymesh rays --frame`).
@@ -51,7 +51,7 @@ pub struct Args {
     /// Spatial splits for bvh-binned, bvh4 and bvh8 (as `raycast
     /// --spatial-splits`): up to FRACTION more references than triangles,
     /// 0.25 when given alone.
-    #[arg(long, value_name = "FRACTION", num_args = 0..=1, default_missing_value = "0.25",
+    #[arg(long, allow_negative_numbers = true, value_name = "FRACTION", num_args = 0..=1, default_missing_value = "0.25",
           value_parser = crate::cmd::parse_fraction)]
     pub spatial_splits: Option<f32>,
     /// Reinsertion optimization of every BVH's binary tree (as `raycast

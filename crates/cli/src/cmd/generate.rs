@@ -34,13 +34,13 @@ pub struct Args {
     pub output: PathBuf,
     /// Triangles (at least; terrain and sphere round up to whole rows). For
     /// teapot-in-stadium: the teapot's, when no --teapot file is given (a sphere).
-    #[arg(long, default_value_t = 1_000_000)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1_000_000)]
     pub triangles: usize,
     /// teapot-in-stadium: the mesh to use as the teapot (any mesh file; it is scaled to 2 units).
     #[arg(long)]
     pub teapot: Option<PathBuf>,
     /// teapot-in-stadium: triangles of the stadium.
-    #[arg(long, default_value_t = 2_000)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 2_000)]
     pub stadium_triangles: usize,
 }
 

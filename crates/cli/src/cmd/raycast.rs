@@ -29,10 +29,10 @@ pub struct Args {
     #[arg(long)]
     pub any_hit: bool,
     /// Worker threads, 1 to 1024 (default: all cores).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub threads: Option<usize>,
     /// Trace the rays this many times and report the best time.
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
     pub repeat: u32,
     /// Print one JSON object instead of a table.
     #[arg(long)]
@@ -77,7 +77,7 @@ pub struct Args {
     /// and triangles a ray tests on meshes of long or diagonal triangles,
     /// at the price of a slower build. FRACTION bounds the duplicated
     /// references (0.25 when given alone: up to 25% more); 0 turns them off.
-    #[arg(long, value_name = "FRACTION", num_args = 0..=1, default_missing_value = "0.25",
+    #[arg(long, allow_negative_numbers = true, value_name = "FRACTION", num_args = 0..=1, default_missing_value = "0.25",
           value_parser = crate::cmd::parse_fraction)]
     pub spatial_splits: Option<f32>,
     /// Reinsertion optimization of the binary BVH after its build (every

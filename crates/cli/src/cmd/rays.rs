@@ -16,10 +16,10 @@ pub struct Args {
     #[arg(long)]
     pub workload: Workload,
     /// Image width and height (random: the square root of the ray count).
-    #[arg(long, default_value_t = 1024)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1024)]
     pub size: u32,
     /// Seed of the random workloads.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1)]
     pub seed: u64,
     /// Aim at this box instead of the mesh's whole box: six numbers,
     /// `minx,miny,minz,maxx,maxy,maxz` (e.g. `-1,0,-1,1,2,1` for the teapot

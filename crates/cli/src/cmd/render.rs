@@ -28,7 +28,7 @@ pub struct Args {
     /// Spatial splits for the meshes' bvh-binned, bvh4 and bvh8 (overrides
     /// the scene's `spatial_splits`): up to FRACTION more references than
     /// triangles, 0.25 when given alone; for scenes of long thin triangles.
-    #[arg(long, value_name = "FRACTION", num_args = 0..=1, default_missing_value = "0.25",
+    #[arg(long, allow_negative_numbers = true, value_name = "FRACTION", num_args = 0..=1, default_missing_value = "0.25",
           value_parser = crate::cmd::parse_fraction)]
     pub spatial_splits: Option<f32>,
     /// Reinsertion optimization of the meshes' BVHs (sets the scene's
@@ -36,16 +36,16 @@ pub struct Args {
     #[arg(long)]
     pub optimize: bool,
     /// Image width (overrides the scene's).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub width: Option<u32>,
     /// Image height (overrides the scene's).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub height: Option<u32>,
     /// Samples per pixel (overrides the scene's).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub spp: Option<u32>,
     /// Worker threads, 1 to 1024 (default: all cores).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub threads: Option<usize>,
     /// Show what each pixel's camera rays cost (nodes visited + primitives tested) instead of shading.
     #[arg(long)]

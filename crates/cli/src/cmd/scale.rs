@@ -18,19 +18,19 @@ use std::time::Instant;
 #[derive(clap::Args)]
 pub struct Args {
     /// Terrain sizes in millions of triangles, comma-separated (e.g. 0.1,1,10,100).
-    #[arg(long, default_value = "0.01,0.1,1")]
+    #[arg(long, allow_negative_numbers = true, default_value = "0.01,0.1,1")]
     pub sizes: String,
     /// Structures, comma-separated.
     #[arg(long, default_value = "bvh8")]
     pub accel: String,
     /// Thread counts, comma-separated, each 1 to 1024 (default: 1 and all cores).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub threads: Option<String>,
     /// Width and height of the primary-ray image traced at every size.
-    #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u32).range(1..=8192))]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 256, value_parser = clap::value_parser!(u32).range(1..=8192))]
     pub size: u32,
     /// Timed repeats of each build and each trace; the best is reported.
-    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..))]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..))]
     pub repeat: u32,
     /// Write a log-log chart (SVG) of build speed, trace speed and cost per
     /// ray against the triangle count. Overwritten if it exists.

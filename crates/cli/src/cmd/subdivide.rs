@@ -29,7 +29,7 @@ pub struct Args {
     #[arg(long, value_enum, default_value = "loop")]
     pub scheme: Scheme,
     /// Levels of subdivision.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1)]
     pub levels: u32,
 }
 
