@@ -221,8 +221,8 @@ impl Grid {
     }
 
     /// [`Self::build_by`] once the union of the boxes, `bounds`, is known:
-    /// one level of cells, then a grid of its own in each cell that lists
-    /// [`BuildConfig::grid_subgrid_min`] primitives or more.
+    /// one level of cells, then a grid of its own in each crowded cell
+    /// ([`Self::split_dense_cells`]).
     fn build_in(
         n: usize,
         box_of: &(dyn Fn(u32) -> Aabb + Sync),
