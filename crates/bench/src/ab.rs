@@ -58,7 +58,7 @@ struct Args {
     #[arg(long, default_value = "random")]
     workload: Workload,
     /// Image size of the generated workload.
-    #[arg(long, default_value_t = 1024)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1024)]
     size: u32,
     /// Structure to build.
     #[arg(long, default_value = "bvh")]
@@ -90,19 +90,19 @@ struct Args {
     #[arg(long)]
     rows: bool,
     /// Rays a chunk: each build traces a chunk, then the other.
-    #[arg(long, default_value_t = 65536)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 65536)]
     chunk: usize,
     /// Passes over all the rays (after one untimed pass).
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 3)]
     rounds: usize,
     /// Processes of each build, taking the chunks in turn: where a
     /// process's data happens to lie in memory changes its speed by a
     /// few percent (two runs of one binary differ so), and several
     /// processes average that out.
-    #[arg(long, default_value_t = 2)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 2)]
     instances: usize,
     /// Spatial splits, as `raymesh raycast --spatial-splits`.
-    #[arg(long, value_name = "FRACTION", num_args = 0..=1, default_missing_value = "0.25")]
+    #[arg(long, allow_negative_numbers = true, value_name = "FRACTION", num_args = 0..=1, default_missing_value = "0.25")]
     spatial_splits: Option<f32>,
     /// Reinsertion optimization, as `raymesh raycast --optimize`.
     #[arg(long)]

@@ -40,20 +40,20 @@ struct Args {
     #[arg(long, default_value = "primary,random,diffuse,shadow")]
     workloads: String,
     /// Image size of generated workloads.
-    #[arg(long, default_value_t = 1024)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1024)]
     size: u32,
     /// Thread counts, comma-separated.
-    #[arg(long, default_value = "1")]
+    #[arg(long, allow_negative_numbers = true, default_value = "1")]
     threads: String,
     /// Timed repeats; the best is reported.
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 3)]
     repeat: u32,
     /// Timed builds of each engine (the best is reported). By default at
     /// least R (`--repeat`), and more until the engine's builds have
     /// taken 0.25 s in all (at most 50): a build of a few milliseconds
     /// varies by a quarter from one to the next on a shared machine, and
     /// three of them do not settle the ratio.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     build_repeat: Option<u32>,
     /// raymesh structures, comma-separated, or `all` (every one but
     /// `brute` and `aabb`, as for `raymesh bench --accel all`, with `bvh`

@@ -30,10 +30,10 @@ struct Args {
     #[arg(required = true)]
     meshes: Vec<PathBuf>,
     /// raymesh's thread counts, comma-separated (OpenMesh uses one).
-    #[arg(long, default_value = "1")]
+    #[arg(long, allow_negative_numbers = true, default_value = "1")]
     threads: String,
     /// Timed repeats of each operation; the best is reported.
-    #[arg(long, default_value_t = 5)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 5)]
     repeat: u32,
     /// JSON lines instead of the text report.
     #[arg(long)]

@@ -106,6 +106,9 @@ fn bad_settings_are_refused() {
         (&["--query", "nearest"][..], "unknown query 'nearest'"),
         (&["--chunk", "0"], "--chunk must be at least 1"),
         (&["--rounds", "0"], "--rounds must be at least 1"),
+        // A negative count is a value, not a flag `-1`.
+        (&["--rounds", "-1"], "for '--rounds <ROUNDS>'"),
+        (&["--chunk", "-5"], "for '--chunk <CHUNK>'"),
         (&["--set", "leaves=4"], "unknown setting 'leaves'"),
         (
             &["--baseline-set", "max_leaf"],

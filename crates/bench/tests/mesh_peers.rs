@@ -81,6 +81,12 @@ fn bad_arguments_are_clear_errors() {
             "thread counts must be at least 1",
         ),
         (vec![elephant.as_str(), "--threads", "two"], "--threads"),
+        // A negative count is a value, not a flag `-1`.
+        (vec![elephant.as_str(), "--threads", "-1"], "--threads"),
+        (
+            vec![elephant.as_str(), "--repeat", "-1"],
+            "for '--repeat <REPEAT>'",
+        ),
         (vec!["/nonexistent/mesh.off"], "mesh.off"),
     ] {
         let out = run(&args);
