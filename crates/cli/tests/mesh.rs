@@ -142,3 +142,21 @@ fn subdivide_writes_the_levels_asked_for() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("catmull-clark"));
 }
+
+#[test]
+fn a_mesh_without_vertices_has_no_bytes_per_vertex() {
+    let dir = tmpdir("mesh-empty");
+    let file = dir.join("empty.off");
+    std::fs::write(&file, "OFF\n0 0 0\n").unwrap();
+    let out = run_ok(raymesh().args(["mesh", "--json"]).arg(&file));
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["vertices"].as_u64(), Some(0));
+    for key in ["half_edge", "winged_edge", "compact"] {
+        assert!(v["bytes_per_vertex"][key].is_null(), "{key}: {v}");
+    }
+    let text = run_ok(raymesh().arg("mesh").arg(&file));
+    assert!(
+        text.contains("bytes per vertex       n/a (no vertices)"),
+        "{text}"
+    );
+}

@@ -27,8 +27,10 @@ pub struct Args {
 
 #[derive(Serialize)]
 struct Bytes {
-    half_edge: f64,
-    winged_edge: f64,
+    /// Each null for a mesh without vertices, where a per-vertex figure
+    /// means nothing.
+    half_edge: Option<f64>,
+    winged_edge: Option<f64>,
     /// Null when some face is not a triangle.
     compact: Option<f64>,
 }
@@ -95,7 +97,12 @@ pub fn run(args: &Args) -> Result<()> {
     .map_err(|e| e.with_path(&args.file))?;
     let we = WingedEdgeMesh::from_half_edge(&he);
     let cm = CompactMesh::from_half_edge(&he);
-    let nv = he.num_vertices().max(1) as f64;
+    // Per vertex: none for a mesh without vertices (the compact form's
+    // index arrays keep a word each even then).
+    let per_vertex = |bytes: usize| {
+        let nv = he.num_vertices();
+        (nv > 0).then(|| bytes as f64 / nv as f64)
+    };
     let mut r = Report {
         vertices: he.num_vertices(),
         edges: he.num_edges(),
@@ -113,9 +120,9 @@ pub fn run(args: &Args) -> Result<()> {
         added_vertices: report.added_vertices,
         added_edges: report.added_edges,
         bytes_per_vertex: Bytes {
-            half_edge: he.memory_bytes() as f64 / nv,
-            winged_edge: we.memory_bytes() as f64 / nv,
-            compact: cm.as_ref().map(|c| c.memory_bytes() as f64 / nv),
+            half_edge: per_vertex(he.memory_bytes()),
+            winged_edge: per_vertex(we.memory_bytes()),
+            compact: cm.as_ref().and_then(|c| per_vertex(c.memory_bytes())),
         },
         build_ms: None,
         one_ring_ns_per_neighbor: None,
@@ -173,13 +180,14 @@ pub fn run(args: &Args) -> Result<()> {
         );
     }
     let b = &r.bytes_per_vertex;
-    println!(
-        "bytes per vertex       half-edge {:.1}, winged-edge {:.1}, compact {}",
-        b.half_edge,
-        b.winged_edge,
-        b.compact
-            .map_or("n/a (not all triangles)".to_string(), |c| format!("{c:.1}"))
-    );
+    match (b.half_edge, b.winged_edge) {
+        (Some(he), Some(we)) => println!(
+            "bytes per vertex       half-edge {he:.1}, winged-edge {we:.1}, compact {}",
+            b.compact
+                .map_or("n/a (not all triangles)".to_string(), |c| format!("{c:.1}"))
+        ),
+        _ => println!("bytes per vertex       n/a (no vertices)"),
+    }
     if let Some(ms) = &r.build_ms {
         println!(
             "build (best of 5)      half-edge {:.2} ms, winged-edge {:.2} ms, compact {}",
