@@ -2,6 +2,36 @@
 
 use raymesh_geometry::{unit_vector, Ray, Rays8, Vec3};
 
+/// The sine of the least angle between a camera's up vector and its
+/// view ([`Camera::try_look_at`]): 1e-5, about 0.0006 degrees. Two unit
+/// vectors along one line, each rounded to `f32`, leave a cross product
+/// of a few 1e-8; a camera set up so close to looking along its up
+/// vector has no orientation worth keeping.
+pub const UP_ALONG_VIEW: f32 = 1e-5;
+
+/// Why [`Camera::try_look_at`] cannot make a camera.
+#[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
+pub enum CameraError {
+    /// The eye or the target has an infinite or NaN coordinate.
+    #[error("the eye and the target need finite coordinates")]
+    NotFinite,
+    /// The eye is the target: no view direction.
+    #[error("the eye is the target: no direction to look in")]
+    EyeAtTarget,
+    /// The up vector is zero or not finite.
+    #[error("up is zero or not finite")]
+    NoUp,
+    /// The up vector lies along the view (or its opposite).
+    #[error("up lies along the view (from the eye to the target): no way to tell up from down")]
+    UpAlongView,
+    /// The vertical field of view is not within (0, 180) degrees.
+    #[error("fov {0} is not within (0, 180) degrees")]
+    Fov(f32),
+    /// The image's width over its height is not a positive number.
+    #[error("aspect ratio {0} is not a positive number")]
+    Aspect(f32),
+}
+
 /// Pinhole camera: an eye, an orthonormal frame and a vertical field of view.
 #[derive(Clone, Copy, Debug)]
 pub struct Camera {
@@ -16,18 +46,54 @@ pub struct Camera {
 impl Camera {
     /// A camera at `eye` looking at `target`; `vfov_deg` is the vertical field of view.
     /// Returns `None` when the frame is degenerate (eye = target, or up parallel to the view).
+    /// [`Self::try_look_at`] says why.
     #[must_use]
     pub fn look_at(eye: Vec3, target: Vec3, up: Vec3, vfov_deg: f32, aspect: f32) -> Option<Self> {
+        Self::try_look_at(eye, target, up, vfov_deg, aspect).ok()
+    }
+
+    /// [`Self::look_at`], or what makes the frame degenerate. `up` need
+    /// not be a unit vector nor square with the view, but it must point
+    /// somewhere else than along it: within [`UP_ALONG_VIEW`] radians of
+    /// the view (or of its opposite) its cross product with the view is
+    /// rounding noise, and the image would turn by whatever that noise
+    /// says.
+    pub fn try_look_at(
+        eye: Vec3,
+        target: Vec3,
+        up: Vec3,
+        vfov_deg: f32,
+        aspect: f32,
+    ) -> Result<Self, CameraError> {
+        if !(eye.is_finite() && target.is_finite()) {
+            return Err(CameraError::NotFinite);
+        }
         // (`unit_vector`: `try_normalize` gave up on an eye more than 1e19
         // units from its target, or less than 1e-19.)
-        let forward = Some(unit_vector(target - eye)).filter(|f| *f != Vec3::ZERO)?;
-        let right = Some(unit_vector(forward.cross(up))).filter(|r| *r != Vec3::ZERO)?;
-        let up = right.cross(forward);
-        (vfov_deg > 0.0 && vfov_deg < 180.0 && aspect > 0.0).then(|| Self {
+        let forward = unit_vector(target - eye);
+        if forward == Vec3::ZERO {
+            return Err(CameraError::EyeAtTarget);
+        }
+        let up_dir = unit_vector(up);
+        if up_dir == Vec3::ZERO {
+            return Err(CameraError::NoUp);
+        }
+        let side = forward.cross(up_dir);
+        if !(side.length() > UP_ALONG_VIEW) {
+            return Err(CameraError::UpAlongView);
+        }
+        if !(vfov_deg > 0.0 && vfov_deg < 180.0) {
+            return Err(CameraError::Fov(vfov_deg));
+        }
+        if !(aspect > 0.0 && aspect.is_finite()) {
+            return Err(CameraError::Aspect(aspect));
+        }
+        let right = unit_vector(side);
+        Ok(Self {
             eye,
             forward,
             right,
-            up,
+            up: right.cross(forward),
             tan_half: (vfov_deg.to_radians() * 0.5).tan(),
             aspect,
         })
@@ -99,6 +165,60 @@ impl Camera {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Each degenerate frame is refused with its own reason; an up vector
+    /// a little off the view still makes an orthonormal frame with up
+    /// on the side it points to.
+    #[test]
+    fn degenerate_frames_say_why() {
+        let (eye, target) = (Vec3::new(0.4, 2.2, 7.5), Vec3::ZERO);
+        let look = |eye, target, up, fov| Camera::try_look_at(eye, target, up, fov, 1.5);
+        assert_eq!(
+            look(eye, eye, Vec3::Y, 40.0).err(),
+            Some(CameraError::EyeAtTarget)
+        );
+        assert_eq!(
+            look(eye, target, Vec3::ZERO, 40.0).err(),
+            Some(CameraError::NoUp)
+        );
+        assert_eq!(
+            look(Vec3::new(f32::NAN, 0.0, 0.0), target, Vec3::Y, 40.0).err(),
+            Some(CameraError::NotFinite)
+        );
+        // Along the view, either way, at any length: the rounded cross
+        // product is not zero, but it is noise.
+        for up in [eye, -eye * 3.0, eye * 1e-20, eye * 1e20] {
+            assert_eq!(
+                look(eye, target, up, 40.0).err(),
+                Some(CameraError::UpAlongView),
+                "{up}"
+            );
+        }
+        for fov in [0.0, 180.0, -5.0, f32::NAN] {
+            assert!(matches!(
+                look(eye, target, Vec3::Y, fov),
+                Err(CameraError::Fov(_))
+            ));
+        }
+        assert!(matches!(
+            Camera::try_look_at(eye, target, Vec3::Y, 40.0, 0.0),
+            Err(CameraError::Aspect(_))
+        ));
+        // Looking nearly straight down, up 1e-3 radians off the view.
+        let down = Vec3::new(0.0, 10.0, 0.01);
+        let c = look(down, target, Vec3::Y, 40.0).unwrap();
+        for (a, b) in [(c.forward, c.right), (c.right, c.up), (c.up, c.forward)] {
+            assert!(a.dot(b).abs() < 1e-5, "{a} {b}");
+        }
+        for v in [c.forward, c.right, c.up] {
+            assert!((v.length() - 1.0).abs() < 1e-6, "{v}");
+        }
+        assert!(c.up.z < 0.0 && c.forward.y < 0.0, "{c:?}");
+        assert_eq!(
+            Camera::look_at(eye, target, Vec3::Y, 40.0, 1.5).map(|c| c.forward),
+            look(eye, target, Vec3::Y, 40.0).ok().map(|c| c.forward)
+        );
+    }
 
     /// `rays8` makes each point's `ray` bit for bit, by rows where the
     /// eight share an octant and axis order and one by one where they do

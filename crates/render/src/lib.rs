@@ -11,7 +11,7 @@ mod image_out;
 mod render;
 mod world;
 
-pub use camera::Camera;
+pub use camera::{Camera, CameraError, UP_ALONG_VIEW};
 pub use demo::{demo_scene, torus_knot};
 pub use desc::{
     AmbientDesc, CameraDesc, DirectionalDesc, ImageDesc, LightDesc, MaterialDesc, MeshDesc,

@@ -5,7 +5,7 @@ use crate::desc::{AmbientDesc, DirectionalDesc, PointDesc};
 use crate::desc::{
     LightDesc, MeshDesc, SceneDesc, Shading, SphereDesc, SurfaceDesc, TransformDesc, TriangleDesc,
 };
-use crate::{Camera, SceneError};
+use crate::{Camera, CameraError, SceneError};
 use raymesh_accel::{
     AccelKind, BuildConfig, CountStats, Hit, Instance, Instances, Ray, Scene, Shape, Shapes,
     Surface, TriangleMesh, Triangles, LANES,
@@ -351,19 +351,21 @@ impl World {
         let c = &desc.camera;
         point("camera.eye".into(), c.eye)?;
         point("camera.target".into(), c.target)?;
-        let camera = Camera::look_at(
+        point("camera.up".into(), c.up)?;
+        let camera = Camera::try_look_at(
             v3(c.eye),
             v3(c.target),
             v3(c.up),
             c.fov,
             img.width as f32 / img.height as f32,
         )
-        .ok_or_else(|| {
-            err(
-                "camera".into(),
-                "degenerate camera: eye = target, up parallel to the view, or fov outside (0, 180)"
-                    .into(),
-            )
+        .map_err(|e| {
+            let at = match e {
+                CameraError::NoUp => "camera.up",
+                CameraError::Fov(_) => "camera.fov",
+                _ => "camera",
+            };
+            err(at.into(), e.to_string())
         })?;
 
         let mut names: HashMap<&str, u32> = HashMap::new();
