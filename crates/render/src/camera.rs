@@ -69,8 +69,17 @@ impl Camera {
             return Err(CameraError::NotFinite);
         }
         // (`unit_vector`: `try_normalize` gave up on an eye more than 1e19
-        // units from its target, or less than 1e-19.)
-        let forward = unit_vector(target - eye);
+        // units from its target, or less than 1e-19; and in `f64` where
+        // the difference itself leaves `f32`, an eye and a target on
+        // either side of 2e38.)
+        let to_target = target - eye;
+        let forward = if to_target.is_finite() {
+            unit_vector(to_target)
+        } else {
+            (target.as_dvec3() - eye.as_dvec3())
+                .normalize_or_zero()
+                .as_vec3()
+        };
         if forward == Vec3::ZERO {
             return Err(CameraError::EyeAtTarget);
         }
@@ -185,6 +194,10 @@ mod tests {
             look(Vec3::new(f32::NAN, 0.0, 0.0), target, Vec3::Y, 40.0).err(),
             Some(CameraError::NotFinite)
         );
+        // An eye and a target whose difference leaves `f32`.
+        let far = Vec3::new(0.0, 0.0, 3e38);
+        let c = look(-far, far, Vec3::Y, 40.0).unwrap();
+        assert_eq!(c.forward, Vec3::Z);
         // Along the view, either way, at any length: the rounded cross
         // product is not zero, but it is noise.
         for up in [eye, -eye * 3.0, eye * 1e-20, eye * 1e20] {
