@@ -22,7 +22,10 @@ pub enum CameraError {
     #[error("up is zero or not finite")]
     NoUp,
     /// The up vector lies along the view (or its opposite).
-    #[error("up lies along the view (from the eye to the target): no way to tell up from down")]
+    #[error(
+        "up lies along the view (within 1e-5 radians of the line from the eye to the target): \
+         which way is up would be rounding noise"
+    )]
     UpAlongView,
     /// The vertical field of view is not within (0, 180) degrees.
     #[error("fov {0} is not within (0, 180) degrees")]
