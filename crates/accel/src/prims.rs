@@ -4,7 +4,8 @@ use crate::packet::{self, Packet8, LANES};
 use crate::pages::{Pages, PagesMut};
 use crate::simd::{block_at, Avx2, BlockRay, GROUP, GROUP_SLOTS};
 use raymesh_geometry::{
-    clip_triangle, intersect_sphere, intersect_triangle, triangle_normal, Aabb, Ray, Sphere, Vec3,
+    clip_triangle, intersect_sphere, intersect_triangle, triangle_hit_bounds, triangle_normal,
+    Aabb, Ray, Sphere, Vec3,
 };
 use rayon::prelude::*;
 
@@ -61,7 +62,11 @@ pub trait Primitives: Send + Sync {
     fn is_empty(&self) -> bool {
         self.len() == 0
     }
-    /// Bounding box of primitive `i`.
+    /// Bounding box of primitive `i`: a box that holds every hit point
+    /// [`Self::intersect`] reports on it, which the structures cull by.
+    /// For triangles, [`raymesh_geometry::triangle_hit_bounds`]: the
+    /// corners' box, or more for a degenerate triangle, whose hits rounding
+    /// may place off it.
     fn bounds(&self, i: u32) -> Aabb;
     /// The boxes of primitive `i`'s part inside `within` on each side of
     /// the plane `axis = pos`, for BVHs with spatial splits (see
@@ -419,8 +424,7 @@ impl Primitives for TriangleMesh {
     }
     #[inline]
     fn bounds(&self, i: u32) -> Aabb {
-        let [a, b, c] = self.corners(i);
-        Aabb::from_point(a).grow(b).grow(c)
+        triangle_hit_bounds(self.corners(i))
     }
     #[inline(always)]
     fn intersect(&self, i: u32, ray: &Ray, tmax: f32) -> Option<PrimHit> {
@@ -692,8 +696,7 @@ impl Primitives for Triangles {
     }
     #[inline]
     fn bounds(&self, i: u32) -> Aabb {
-        let [a, b, c] = self.corners(i);
-        Aabb::from_point(a).grow(b).grow(c)
+        triangle_hit_bounds(self.corners(i))
     }
     #[inline(always)]
     fn intersect(&self, i: u32, ray: &Ray, tmax: f32) -> Option<PrimHit> {
@@ -972,7 +975,7 @@ impl Primitives for Shapes {
     }
     fn bounds(&self, i: u32) -> Aabb {
         match &self.0[i as usize] {
-            Shape::Triangle([a, b, c]) => Aabb::from_point(*a).grow(*b).grow(*c),
+            Shape::Triangle(corners) => triangle_hit_bounds(*corners),
             Shape::Sphere(s) => s.bounds(),
         }
     }

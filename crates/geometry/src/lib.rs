@@ -24,6 +24,6 @@ pub use octahedral::{decode_unit, encode_unit, ZERO_UNIT};
 pub use ray::{Ray, RayLanes8, Rays8};
 pub use sphere::{intersect_sphere, Sphere, SphereHit};
 pub use triangle::{
-    clip_triangle, hit_f64, intersect_triangle, needs_f64, triangle_area2, triangle_normal, TriHit,
-    Triangle,
+    clip_triangle, hit_f64, intersect_triangle, needs_f64, triangle_area2, triangle_hit_bounds,
+    triangle_is_degenerate, triangle_normal, TriHit, Triangle,
 };

@@ -54,6 +54,51 @@ impl Triangle {
     }
 }
 
+/// Whether the corners lie in line (or coincide): a zero-area triangle,
+/// by the exact test of [`triangle_area2`] (its `f64` cross product of
+/// the `f32` edges is zero).
+#[inline]
+#[must_use]
+pub fn triangle_is_degenerate([a, b, c]: [Vec3; 3]) -> bool {
+    let a = a.as_dvec3();
+    (b.as_dvec3() - a).cross(c.as_dvec3() - a) == glam::DVec3::ZERO
+}
+
+/// The box that holds every point where [`intersect_triangle`] puts a hit
+/// on triangle `corners`, the box acceleration structures must give it:
+/// the corners' box, grown on every axis by its largest extent for a
+/// degenerate triangle ([`triangle_is_degenerate`]).
+///
+/// A hit's `t` is its barycentric mix of the corners' distances along the
+/// ray's dominant axis, so the hit point lies within the corners' range
+/// on that axis, and within that range's width, on the other two (along
+/// which the ray moves no faster), of where the ray meets the triangle.
+/// On a proper triangle the mix is the point's own and the hit lies in
+/// the corners' box (to rounding, which traversals allow for). On a
+/// degenerate one that rounding leaves a tiny triangle around the ray
+/// (see [`intersect_triangle`]) the mix is rounding noise, and the hit
+/// may lie anywhere in that range: outside the corners' box, which is
+/// flat, so that a structure culling it there missed what brute force
+/// finds (`degenerate_triangles_are_found_where_brute_force_finds_them`
+/// in `raymesh-accel`'s agreement tests).
+#[inline]
+#[must_use]
+pub fn triangle_hit_bounds(corners: [Vec3; 3]) -> Aabb {
+    let [a, b, c] = corners;
+    let tight = Aabb::from_point(a).grow(b).grow(c);
+    if !triangle_is_degenerate(corners) {
+        return tight;
+    }
+    // Plus the rounding of where the ray meets the segment, as in
+    // `clip_triangle`; saturated, so that the box stays finite.
+    let reach = a.abs().max(b.abs()).max(c.abs()) * (64.0 * f32::EPSILON)
+        + Vec3::splat(tight.extent().max_element() + f32::MIN_POSITIVE);
+    Aabb {
+        min: (tight.min - reach).max(Vec3::splat(-f32::MAX)),
+        max: (tight.max + reach).min(Vec3::splat(f32::MAX)),
+    }
+}
+
 /// The boxes of the parts of triangle `corners` inside `within` on each
 /// side of the plane `axis = pos`, as a spatial-split BVH builder needs
 /// them (Stich, Friedrich & Dietrich, "Spatial splits in bounding volume
@@ -65,9 +110,14 @@ impl Triangle {
 /// crossing is widened by a bound on its rounding error (a few dozen ulps
 /// of the larger corner coordinate, far more than its handful of `f32`
 /// operations can err by), so every point of the triangle inside `within`
-/// lies in the box of its side (both boxes, on the plane).
+/// lies in the box of its side (both boxes, on the plane). A degenerate
+/// triangle's hits may lie anywhere in its [`triangle_hit_bounds`]: it
+/// cuts `within` itself.
 #[must_use]
 pub fn clip_triangle(corners: [Vec3; 3], within: Aabb, axis: usize, pos: f32) -> (Aabb, Aabb) {
+    if triangle_is_degenerate(corners) {
+        return within.split(axis, pos);
+    }
     /// Relative error bound of a crossing: 64 ε, where the computation
     /// (two subtractions, a division, a multiply and an add) errs by
     /// less than 8 ε of the larger corner coordinate.
@@ -146,7 +196,9 @@ pub fn triangle_area2(a: Vec3, b: Vec3, c: Vec3) -> f64 {
 /// to 33%). That hit keeps a mesh with such a triangle watertight: the
 /// triangle joins the edges of the neighbours on its two sides, which
 /// share no edge with each other, and without it 4% of those rays passed
-/// between them (`degenerate_triangles_keep_meshes_watertight`).
+/// between them (`degenerate_triangles_keep_meshes_watertight`). Such a
+/// hit may lie outside the corners' box; the structures give a degenerate
+/// triangle a box that holds it ([`triangle_hit_bounds`]).
 ///
 /// Where `f32` cannot be trusted the test is redone in `f64` from the same
 /// sheared corners ([`needs_f64`]): an edge function that rounds to exactly
@@ -448,6 +500,81 @@ mod tests {
         }
         assert!(through > 100, "{through} rays between the neighbours");
         assert_eq!(caught, through, "rays through the mesh");
+    }
+
+    /// Every hit on a degenerate triangle lies where a traversal looks for
+    /// it: the ray meets its [`triangle_hit_bounds`] no later than the
+    /// bound a traversal culls against ([`crate::cull_bound`] of the
+    /// hit's `t`). The corners' own box fails that on some of the same
+    /// rays (the reason for the growth). Corners exactly in line (on a
+    /// lattice, a whole step apart), rays from all around aimed at points
+    /// of the segment. A proper triangle keeps its corners' box.
+    #[test]
+    fn hits_on_degenerate_triangles_lie_in_their_hit_bounds() {
+        let mut s = 0x2545_f491_u32;
+        let mut next = move || {
+            s ^= s << 13;
+            s ^= s >> 17;
+            s ^= s << 5;
+            f64::from(s) as f32 / u32::MAX as f32
+        };
+        let (mut hits, mut outside_corners) = (0, 0);
+        for _ in 0..400 {
+            let mut lattice = |scale: f32| ((next() * 16.0).floor() - 8.0) * scale;
+            let a = Vec3::new(lattice(0.125), lattice(0.125), lattice(0.125));
+            let step = Vec3::new(lattice(1.0), lattice(1.0), lattice(1.0)) * 0.0625;
+            let (k, m) = ((next() * 4.0).floor() + 1.0, -(next() * 4.0).floor());
+            let corners = [a, a + step * k, a + step * m];
+            if !triangle_is_degenerate(corners) {
+                continue;
+            }
+            let bounds = triangle_hit_bounds(corners);
+            let tight = Aabb::from_point(corners[0])
+                .grow(corners[1])
+                .grow(corners[2]);
+            assert!(bounds.min.cmple(tight.min).all() && bounds.max.cmpge(tight.max).all());
+            for _ in 0..100 {
+                let p = corners[2] + (corners[1] - corners[2]) * next();
+                let d = Vec3::new(next() - 0.5, next() - 0.5, next() - 0.5);
+                let r = Ray::infinite(p - d * (1.0 + 4.0 * next()), d);
+                let [p0, p1, p2] = corners;
+                let Some(h) = intersect_triangle(&r, f32::INFINITY, p0, p1, p2) else {
+                    continue;
+                };
+                hits += 1;
+                let entry = bounds.intersect_ray(&r, f32::INFINITY).map(|(t0, _)| t0);
+                assert!(
+                    entry.is_some_and(|t0| t0 <= crate::cull_bound(h.t)),
+                    "{corners:?} {r:?}: hit at {} but the box at {entry:?}",
+                    h.t
+                );
+                let corner_entry = tight.intersect_ray(&r, f32::INFINITY).map(|(t0, _)| t0);
+                if !corner_entry.is_some_and(|t0| t0 <= crate::cull_bound(h.t)) {
+                    outside_corners += 1;
+                }
+            }
+        }
+        assert!(
+            hits > 500 && outside_corners > 50,
+            "{hits} hits, {outside_corners} outside"
+        );
+        let proper = [Vec3::ZERO, Vec3::X, Vec3::Y];
+        assert!(!triangle_is_degenerate(proper));
+        assert_eq!(
+            triangle_hit_bounds(proper),
+            Aabb::from_point(Vec3::ZERO).grow(Vec3::X).grow(Vec3::Y)
+        );
+        // Finite however far the corners lie.
+        let far = [Vec3::splat(-3e38), Vec3::splat(3e38), Vec3::ZERO];
+        assert!(triangle_is_degenerate(far));
+        let b = triangle_hit_bounds(far);
+        assert!(b.min.is_finite() && b.max.is_finite(), "{b:?}");
+        // Clipped, a degenerate triangle cuts the box it is given.
+        let within = triangle_hit_bounds([Vec3::ZERO, Vec3::X * 2.0, Vec3::X]);
+        assert_eq!(
+            clip_triangle([Vec3::ZERO, Vec3::X * 2.0, Vec3::X], within, 1, 0.5),
+            within.split(1, 0.5)
+        );
     }
 
     /// Plain f64 Möller–Trumbore, as the reference.
