@@ -459,6 +459,18 @@ mod tests {
         assert!(intersect_triangle(&r, f32::INFINITY, a, b, c).is_none());
     }
 
+    /// Numbers in `[0, 1]` from a xorshift generator seeded with `seed`
+    /// (not zero): the same sequence on every run.
+    fn uniform(seed: u32) -> impl FnMut() -> f32 {
+        let mut s = seed;
+        move || {
+            s ^= s << 13;
+            s ^= s >> 17;
+            s ^= s << 5;
+            f64::from(s) as f32 / u32::MAX as f32
+        }
+    }
+
     /// A segment split at a point `c` between its ends: two triangles on
     /// one side meet at `c`, one on the other side spans the whole
     /// segment, and a degenerate triangle `a`, `b`, `c` joins their edges.
@@ -478,13 +490,7 @@ mod tests {
         let under = [b, a, Vec3::new(1.0, -1.0, 0.1)];
         let line = [a, b, c];
         assert_eq!(triangle_area2(a, b, c), 0.0);
-        let mut s = 0x1234_5678u32;
-        let mut next = move || {
-            s ^= s << 13;
-            s ^= s >> 17;
-            s ^= s << 5;
-            f64::from(s) as f32 / u32::MAX as f32
-        };
+        let mut next = uniform(0x1234_5678);
         let (mut through, mut caught) = (0, 0);
         for _ in 0..20_000 {
             let p = Vec3::new(0.1 + 2.2 * next(), 0.0, 0.0);
@@ -511,13 +517,7 @@ mod tests {
     /// of the segment. A proper triangle keeps its corners' box.
     #[test]
     fn hits_on_degenerate_triangles_lie_in_their_hit_bounds() {
-        let mut s = 0x2545_f491_u32;
-        let mut next = move || {
-            s ^= s << 13;
-            s ^= s >> 17;
-            s ^= s << 5;
-            f64::from(s) as f32 / u32::MAX as f32
-        };
+        let mut next = uniform(0x2545_f491);
         let (mut hits, mut outside_corners) = (0, 0);
         for _ in 0..400 {
             let mut lattice = |scale: f32| ((next() * 16.0).floor() - 8.0) * scale;
