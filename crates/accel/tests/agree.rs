@@ -733,41 +733,14 @@ fn invalid_rows_never_hit() {
     }
 }
 
-/// A degenerate (zero-area) triangle and a blocker on each ray that hits
-/// it: a ray through the segment its corners span can hit it (rounding
-/// leaves it a tiny triangle around the ray, see
-/// `raymesh_geometry::intersect_triangle`) at a `t` short of where it
-/// crosses the segment, outside the corners' box; a small triangle placed
-/// across the ray between that `t` and the crossing is then hit after it,
-/// and a structure that, having found the blocker, culled the degenerate
-/// triangle's box (which the ray enters only at the crossing) missed what
-/// brute force finds.
+/// A degenerate triangle with a blocker across each ray that hits it
+/// short of its segment ([`common::degenerate_with_blockers`]): a
+/// structure that, having found the blocker, culled the degenerate
+/// triangle's box (which the ray enters only at the segment) missed what
+/// brute force finds, until the triangle's box grew to hold its hits
+/// (`raymesh_geometry::triangle_hit_bounds`).
 #[test]
 fn degenerate_triangles_are_found_where_brute_force_finds_them() {
-    let mut next = common::uniform(0x5eed_0dd5);
-    let segment = [Vec3::ZERO, Vec3::X * 2.0, Vec3::X];
-    let alone = Scene::build(tri_mesh(&[segment]), AccelKind::Brute);
-    let (mut tris, mut rays) = (vec![segment], Vec::new());
-    for _ in 0..4000 {
-        let p = Vec3::new(2.0 * next(), 0.0, 0.0);
-        let d = Vec3::new(next() * 2.0 - 1.0, next() * 2.0 - 1.0, next() * 2.0 - 1.0);
-        let d = d.normalize_or(Vec3::Y);
-        let cross = 0.5 + 2.0 * next();
-        let r = Ray::infinite(p - d * cross, d);
-        if let Some(h) = alone.intersect(&r) {
-            if h.t < cross * 0.99 {
-                // A blocker across the ray halfway between.
-                let at = r.at((h.t + cross) * 0.5);
-                let (e, f) = (d.any_orthonormal_pair().0, d.any_orthonormal_pair().1);
-                tris.push([
-                    at + e * 0.01,
-                    at - e * 0.01 + f * 0.01,
-                    at - e * 0.01 - f * 0.01,
-                ]);
-            }
-        }
-        rays.push(r);
-    }
-    assert!(tris.len() > 20, "{} blockers", tris.len() - 1);
-    check_mesh(&tri_mesh(&tris), &rays);
+    let (m, rays) = common::degenerate_with_blockers(4000, false);
+    check_mesh(&m, &rays);
 }

@@ -398,3 +398,13 @@ fn hard_cases() {
     check_mesh(&tri_mesh(&huge), &rays_huge);
     check_mesh(&TriangleMesh::default(), &rays);
 }
+
+/// Packets find a degenerate triangle where one ray at a time does, with
+/// a blocker across each ray that hits it short of its segment
+/// (`common::degenerate_with_blockers`, coherent rays: eight from one eye
+/// toward neighbouring points of the segment).
+#[test]
+fn degenerate_triangles_with_blockers() {
+    let (m, rays) = common::degenerate_with_blockers(2000, true);
+    assert!(check_mesh(&m, &rays) > 0);
+}

@@ -356,3 +356,12 @@ fn coherent_occlusion_shares_leaf_tests() {
         }
     }
 }
+
+/// Streams find a degenerate triangle where one ray at a time does, with
+/// a blocker across each ray that hits it short of its segment
+/// (`common::degenerate_with_blockers`).
+#[test]
+fn degenerate_triangles_with_blockers() {
+    let (m, rays) = common::degenerate_with_blockers(2000, false);
+    assert!(check_mesh(&m, &rays) > 0);
+}

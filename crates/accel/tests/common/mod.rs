@@ -186,3 +186,67 @@ pub fn kernel_cases() -> Vec<(&'static str, TriangleMesh, Vec<Ray>, Want)> {
         })
         .collect()
 }
+
+/// A degenerate (zero-area) triangle, the segment from the origin to
+/// (2, 0, 0), and `n` rays through points of it, with a blocker across
+/// each ray that hits the triangle short of where it crosses the segment.
+/// A ray through the segment can hit the triangle (rounding leaves it a
+/// tiny triangle around the ray, see
+/// `raymesh_geometry::intersect_triangle`) at a `t` outside the corners'
+/// box, which it enters only at the segment; the small triangle placed
+/// across the ray halfway between is hit after the degenerate one. Rays
+/// from all around, or (`coherent`) from four eyes, eight at a time
+/// toward neighbouring points of the segment, as packets are made.
+#[allow(dead_code)]
+pub fn degenerate_with_blockers(n: usize, coherent: bool) -> (TriangleMesh, Vec<Ray>) {
+    let mut next = uniform(0x5eed_0dd5);
+    let segment = [Vec3::ZERO, Vec3::X * 2.0, Vec3::X];
+    let alone = Scene::build(tri_mesh(&[segment]), AccelKind::Brute);
+    // Two look along the segment, where its corners' distances along a
+    // ray spread most.
+    let eyes = [
+        Vec3::new(-1.0, 1.5, 2.0),
+        Vec3::new(-2.0, 0.4, 0.3),
+        Vec3::new(4.0, -0.3, 0.5),
+        Vec3::new(0.7, 0.4, -2.5),
+    ];
+    let (mut tris, mut rays) = (vec![segment], Vec::with_capacity(n));
+    let mut aim = 0.0;
+    for i in 0..n {
+        let r = if coherent {
+            if i % 8 == 0 {
+                aim = 1.9 * next();
+            }
+            let eye = eyes[(i / 8) % eyes.len()];
+            let p = Vec3::new(aim + 0.1 * next(), 0.0, 0.0);
+            Ray::infinite(eye, (p - eye).normalize())
+        } else {
+            let p = Vec3::new(2.0 * next(), 0.0, 0.0);
+            let d = Vec3::new(next() * 2.0 - 1.0, next() * 2.0 - 1.0, next() * 2.0 - 1.0);
+            let d = d.normalize_or(Vec3::Y);
+            Ray::infinite(p - d * (0.5 + 2.0 * next()), d)
+        };
+        // Where the ray passes the segment's line (`y = z = 0`), by the
+        // axis its direction crosses it fastest on.
+        let a = if r.dir().y.abs() > r.dir().z.abs() {
+            1
+        } else {
+            2
+        };
+        let cross = -r.origin()[a] / r.dir()[a];
+        if let Some(h) = alone.intersect(&r) {
+            if h.t < cross * 0.99 {
+                let at = r.at((h.t + cross) * 0.5);
+                let (e, f) = r.dir().any_orthonormal_pair();
+                tris.push([
+                    at + e * 0.01,
+                    at - e * 0.01 + f * 0.01,
+                    at - e * 0.01 - f * 0.01,
+                ]);
+            }
+        }
+        rays.push(r);
+    }
+    assert!(tris.len() > n / 200, "{} blockers", tris.len() - 1);
+    (tri_mesh(&tris), rays)
+}
