@@ -55,8 +55,10 @@ impl Triangle {
 }
 
 /// Whether the corners lie in line (or coincide): a zero-area triangle,
-/// by the exact test of [`triangle_area2`] (its `f64` cross product of
-/// the `f32` edges is zero).
+/// [`triangle_area2`] zero (its `f64` cross product of the `f32` edges
+/// is zero), without the square root. The one test of degeneracy:
+/// `raymesh info` counts by it and the structures grow boxes by it
+/// ([`triangle_hit_bounds`]).
 #[inline]
 #[must_use]
 pub fn triangle_is_degenerate([a, b, c]: [Vec3; 3]) -> bool {
@@ -85,7 +87,7 @@ pub fn triangle_is_degenerate([a, b, c]: [Vec3; 3]) -> bool {
 #[must_use]
 pub fn triangle_hit_bounds(corners: [Vec3; 3]) -> Aabb {
     let [a, b, c] = corners;
-    let tight = Aabb::from_point(a).grow(b).grow(c);
+    let tight = Triangle { v: corners }.bounds();
     if !triangle_is_degenerate(corners) {
         return tight;
     }

@@ -1,7 +1,7 @@
 //! The indexed polygon mesh every reader produces.
 
 use crate::{ErrorKind, Location, MeshError};
-use raymesh_geometry::{triangle_area2, Aabb, Vec3};
+use raymesh_geometry::{triangle_is_degenerate, Aabb, Vec3};
 use rayon::prelude::*;
 
 /// Positions plus polygonal faces, stored compactly: the faces' vertex
@@ -220,7 +220,7 @@ impl IndexedMesh {
                 let a = p[face[0] as usize];
                 face[1..]
                     .windows(2)
-                    .filter(|w| triangle_area2(a, p[w[0] as usize], p[w[1] as usize]) == 0.0)
+                    .filter(|w| triangle_is_degenerate([a, p[w[0] as usize], p[w[1] as usize]]))
                     .count()
             })
             .sum();

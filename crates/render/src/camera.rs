@@ -23,8 +23,8 @@ pub enum CameraError {
     NoUp,
     /// The up vector lies along the view (or its opposite).
     #[error(
-        "up lies along the view (within 1e-5 radians of the line from the eye to the target): \
-         which way is up would be rounding noise"
+        "up lies along the view (within {UP_ALONG_VIEW:e} radians of the line from the eye to the \
+         target): which way is up would be rounding noise"
     )]
     UpAlongView,
     /// The vertical field of view is not within (0, 180) degrees.
@@ -48,8 +48,9 @@ pub struct Camera {
 
 impl Camera {
     /// A camera at `eye` looking at `target`; `vfov_deg` is the vertical field of view.
-    /// Returns `None` when the frame is degenerate (eye = target, or up parallel to the view).
-    /// [`Self::try_look_at`] says why.
+    /// Returns `None` when the camera cannot be made (eye = target, up
+    /// along the view, fov outside (0, 180), aspect not positive);
+    /// [`Self::try_look_at`] says which.
     #[must_use]
     pub fn look_at(eye: Vec3, target: Vec3, up: Vec3, vfov_deg: f32, aspect: f32) -> Option<Self> {
         Self::try_look_at(eye, target, up, vfov_deg, aspect).ok()
