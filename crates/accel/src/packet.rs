@@ -259,7 +259,18 @@ impl<'a> Packet8<'a> {
             tmax: *tmax,
             origin: *origin,
             inv_dir: *inv_dir,
-            inv_exit: inv_dir.map(|row| row.map(exit_reciprocal)),
+            inv_exit: {
+                // A loop, not `map`: `array::map` stayed a call into
+                // `try_map` compiled apart, whose lane-by-lane stores the
+                // rows' 32-byte loads then waited on.
+                let mut e = *inv_dir;
+                for row in &mut e {
+                    for x in row {
+                        *x = exit_reciprocal(*x);
+                    }
+                }
+                e
+            },
             tmin: *tmin,
             neg,
             k,
