@@ -21,7 +21,7 @@
 use crate::{BlockHits, PrimHit};
 use raymesh_geometry::{
     exit_reciprocal, intersect_triangle, max_nan_second as max_ns, min_nan_second as min_ns,
-    needs_f64, Ray, RayLanes8, Rays8, Vec3, Vec4,
+    needs_f64, Mat4, Ray, RayLanes8, Rays8, Vec3, Vec4,
 };
 use std::cell::OnceCell;
 
@@ -184,17 +184,42 @@ impl<'a> Packet8<'a> {
     #[inline]
     pub(crate) fn build(rays: &'a [Ray; LANES]) -> Self {
         let (_, k) = rays[0].shear();
-        let lanes = |f: fn(&Ray) -> Vec3| -> [[f32; LANES]; 3] {
-            let v: [[f32; 3]; LANES] = std::array::from_fn(|i| f(&rays[i]).to_array());
-            std::array::from_fn(|a| std::array::from_fn(|i| v[i][a]))
-        };
+        // Each ray's fields as 4-vectors (origin and `tmin`, reciprocal
+        // and `tmax`, shear), four rays' transposed at a time
+        // ([`Mat4::transpose`]) and stored as whole rows: gathered lane by
+        // lane (`array::from_fn`, which stayed calls), the rows were 96
+        // stores of four bytes that the packet's row loads waited on.
+        let (mut origin, mut inv_dir, mut shear) =
+            ([[0.0f32; LANES]; 3], [[0.0; LANES]; 3], [[0.0; LANES]; 3]);
+        let (mut tmin, mut tmax) = ([0.0f32; LANES], [0.0f32; LANES]);
+        for h in [0, 4] {
+            let quad = |f: fn(&Ray) -> Vec4| {
+                Mat4::from_cols(
+                    f(&rays[h]),
+                    f(&rays[h + 1]),
+                    f(&rays[h + 2]),
+                    f(&rays[h + 3]),
+                )
+                .transpose()
+            };
+            let o = quad(|r| r.origin().extend(r.tmin()));
+            let i = quad(|r| r.inv_dir().extend(r.tmax()));
+            let s = quad(|r| r.shear().0.extend(0.0));
+            for a in 0..3 {
+                o.col(a).write_to_slice(&mut origin[a][h..h + 4]);
+                i.col(a).write_to_slice(&mut inv_dir[a][h..h + 4]);
+                s.col(a).write_to_slice(&mut shear[a][h..h + 4]);
+            }
+            o.col(3).write_to_slice(&mut tmin[h..h + 4]);
+            i.col(3).write_to_slice(&mut tmax[h..h + 4]);
+        }
         Self::assemble(
             Source::Rays(rays),
-            &std::array::from_fn(|i| rays[i].tmax()),
-            &lanes(Ray::origin),
-            &lanes(Ray::inv_dir),
-            &lanes(|r| r.shear().0),
-            &std::array::from_fn(|i| rays[i].tmin()),
+            &tmax,
+            &origin,
+            &inv_dir,
+            &shear,
+            &tmin,
             k,
             rays[0].octant(),
         )
