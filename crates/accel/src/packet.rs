@@ -694,6 +694,45 @@ mod tests {
         })
     }
 
+    /// A packet of prepared rays (`Packet8::build`, which transposes
+    /// them four at a time) and the packet of the same rays as rows
+    /// (`Packet8::from_lanes`) hold every lane's own constants, bit for
+    /// bit: its origin, reciprocals, shear, interval and exit reciprocals.
+    #[test]
+    fn built_packets_hold_each_lanes_constants() {
+        let mut f = rng(11);
+        for n in 0..300 {
+            let mut rays = coherent(&mut f);
+            // Finite intervals of their own on some lanes.
+            if n % 2 == 1 {
+                for (i, r) in rays.iter_mut().enumerate() {
+                    *r = Ray::new(r.origin(), r.dir(), 0.01 * i as f32, 2.0 + f().abs());
+                }
+            }
+            let rows = Rays8::from_rays(&rays);
+            let lanes = rows.lanes().expect("one octant and axis order");
+            for p in [Packet8::build(&rays), Packet8::from_lanes(&rows, &lanes)] {
+                let bits = |x: f32| x.to_bits();
+                for (i, r) in rays.iter().enumerate() {
+                    let (s, k) = r.shear();
+                    assert_eq!(p.k, k);
+                    for a in 0..3 {
+                        assert_eq!(bits(p.origin[a][i]), bits(r.origin()[a]));
+                        assert_eq!(bits(p.porigin[a][i]), bits(r.origin()[k[a]]));
+                        assert_eq!(bits(p.inv_dir[a][i]), bits(r.inv_dir()[a]));
+                        assert_eq!(
+                            bits(p.inv_exit[a][i]),
+                            bits(exit_reciprocal(r.inv_dir()[a]))
+                        );
+                        assert_eq!(bits(p.shear[a][i]), bits(s[a]));
+                    }
+                    assert_eq!(bits(p.tmin[i]), bits(r.tmin()));
+                    assert_eq!(bits(p.tmax[i]), bits(r.tmax()));
+                }
+            }
+        }
+    }
+
     /// Each lane's box test gives the single-ray node test's bits.
     #[test]
     fn packet_slab_matches_the_single_ray_test() {

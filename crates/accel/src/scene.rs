@@ -944,7 +944,6 @@ impl<P: Primitives> Scene<P> {
         PackedHit::found(found)
     }
 
-    /// The [`BareHit`] of hit `h` of primitive `prim` (in storage order).
     /// [`Self::bare`] of each lane's hit, if any. A loop: `array::map`
     /// stayed a call into `try_map` compiled apart (4% of `raymesh raycast
     /// --packets`' time on the pig's primary rays).
@@ -957,6 +956,7 @@ impl<P: Primitives> Scene<P> {
         out
     }
 
+    /// The [`BareHit`] of hit `h` of primitive `prim` (in storage order).
     #[inline]
     fn bare(&self, prim: u32, h: PrimHit) -> BareHit {
         bare_at(self.original_index(prim), h)
