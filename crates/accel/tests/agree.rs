@@ -744,3 +744,56 @@ fn degenerate_triangles_are_found_where_brute_force_finds_them() {
     let (m, rays) = common::degenerate_with_blockers(4000, false);
     check_mesh(&m, &rays);
 }
+
+/// The one known gap in the structures' agreement with brute force (the
+/// README's exactness paragraph), bounded: thin triangles hit at grazing
+/// angles, each with a blocker across the ray between its hit and where
+/// the ray enters its corners' box ([`common::thin_with_blockers`]). A
+/// structure that has found the blocker culls the thin triangle's box,
+/// which the ray enters only after the blocker, while brute force keeps
+/// the thin triangle's nearer (noisy) hit. Every build may answer so,
+/// and no other way: where it differs from brute force, brute force's
+/// hit is a sliver's, short of that sliver's box, and the build's is a
+/// blocker's, in between. Any-hit queries agree everywhere (they stop
+/// at a hit and cull nothing by it). On this scene's 817 rays (x86-64,
+/// `--nocapture` prints the counts) the SAH trees differ on 3 to 9 (with
+/// spatial splits, or reinsertion, or neither), the median-split tree,
+/// the grid and the k-d tree on none here; nothing in them rules it out.
+#[test]
+fn thin_triangles_differ_only_in_the_known_gap() {
+    let (m, rays, slivers) = common::thin_with_blockers(400, 3000);
+    assert!(rays.len() > 50, "{} rays", rays.len());
+    let brute = Scene::build(m.clone(), AccelKind::Brute);
+    let want: Vec<_> = rays.iter().map(|r| brute.intersect_bare(r)).collect();
+    let entry = |prim: u32, r: &Ray| {
+        let bounds = Aabb::from_points(m.corners(prim));
+        bounds.intersect_ray(r, f32::INFINITY).map(|(t, _)| t)
+    };
+    for (kind, config, how) in builds() {
+        let s = Scene::build_with(m.clone(), kind, &config);
+        let mut differ = 0;
+        for (i, (r, w)) in rays.iter().zip(&want).enumerate() {
+            assert_eq!(
+                s.occluded(r),
+                w.is_some(),
+                "{kind}{how}: any hit differs for ray {i}: {r:?}"
+            );
+            let got = s.intersect_bare(r);
+            if bare_bits(got) == bare_bits(*w) {
+                continue;
+            }
+            differ += 1;
+            let (w, g) = (w.unwrap(), got.unwrap());
+            let box_entry = entry(w.prim, r).unwrap_or(f32::INFINITY);
+            assert!(
+                (w.prim as usize) < slivers
+                    && g.prim as usize >= slivers
+                    && w.t < g.t
+                    && g.t < box_entry,
+                "{kind}{how}: ray {i} differs outside the known gap: brute force {w:?} \
+                 (its box entered at {box_entry}), got {g:?}: {r:?}"
+            );
+        }
+        eprintln!("{kind}{how}: {differ} of {} rays in the gap", rays.len());
+    }
+}

@@ -250,3 +250,65 @@ pub fn degenerate_with_blockers(n: usize, coherent: bool) -> (TriangleMesh, Vec<
     assert!(tris.len() > n / 200, "{} blockers", tris.len() - 1);
     (tri_mesh(&tris), rays)
 }
+
+/// Thin triangles hit at grazing angles, each hit that lies short of its
+/// triangle's corners' box (by more than twice the traversals' slack,
+/// [`raymesh_geometry::CULL_SLACK`]) with a small blocker placed across
+/// the ray halfway between the hit and the box's entry: the known gap of
+/// the README's exactness paragraph, made to show. `slivers` triangles,
+/// each two units long and `2 / α` wide (α from 10 to 10⁴), in planes
+/// flat or within 10⁻³ of flat (a box thin in one axis, whose face a ray
+/// in the plane grazes), far apart; `tries` rays at each, aimed at a
+/// point inside it from 0.5 to 2.5 units away, 10⁻¹ to 10⁻⁶ radians off
+/// its plane. Returns the mesh (the slivers first), the kept rays, and
+/// how many slivers there are.
+#[allow(dead_code)]
+pub fn thin_with_blockers(slivers: usize, tries: usize) -> (TriangleMesh, Vec<Ray>, usize) {
+    let mut next = uniform(0x7417_0001);
+    let mut rnd = move || {
+        let v = Vec3::new(next(), next(), next()) * 2.0 - Vec3::ONE;
+        (v, next(), next(), next())
+    };
+    let (mut tris, mut blockers, mut rays) = (Vec::new(), Vec::new(), Vec::new());
+    for j in 0..slivers {
+        let c = Vec3::new(10.0 * j as f32, 0.0, 0.0);
+        let (v, s, alpha, _) = rnd();
+        let tilt = 1e-3 * (j % 3) as f32;
+        let e = Vec3::new(v.x, v.y, v.z * tilt).normalize_or(Vec3::X);
+        let f = Vec3::new(-e.y, e.x, 0.0).normalize_or(Vec3::Y);
+        let alpha = 10f32.powf(1.0 + 3.0 * alpha);
+        let a = [c - e, c + e, c + e * (s * 1.8 - 0.9) + f * (2.0 / alpha)];
+        tris.push(a);
+        let alone = Scene::build(tri_mesh(&[a]), AccelKind::Brute);
+        let n = (a[1] - a[0]).cross(a[2] - a[0]).normalize();
+        let bounds = Aabb::from_points(a);
+        for _ in 0..tries {
+            let (w, u, v, x) = rnd();
+            let (u, v) = if u + v > 1.0 {
+                (1.0 - u, 1.0 - v)
+            } else {
+                (u, v)
+            };
+            let p = a[0] + (a[1] - a[0]) * u + (a[2] - a[0]) * v;
+            let along = (w - n * n.dot(w)).normalize_or(e);
+            let off = 10f32.powf(-1.0 - 5.0 * x) * if w.x < 0.0 { -1.0 } else { 1.0 };
+            let d = (along + n * off).normalize();
+            let r = Ray::infinite(p - d * (0.5 + 2.0 * (w.y * 0.5 + 0.5)), d);
+            let Some(h) = alone.intersect(&r) else {
+                continue;
+            };
+            let Some((entry, _)) = bounds.intersect_ray(&r, f32::INFINITY) else {
+                continue;
+            };
+            if h.t * (1.0 + 4.0 * raymesh_geometry::CULL_SLACK) < entry {
+                let at = r.at((h.t + entry) * 0.5);
+                let (g, k) = r.dir().any_orthonormal_pair();
+                let s = (entry - h.t) * 0.05;
+                blockers.push([at + g * s, at - g * s + k * s, at - g * s - k * s]);
+                rays.push(r);
+            }
+        }
+    }
+    tris.extend(blockers);
+    (tri_mesh(&tris), rays, slivers)
+}
