@@ -252,13 +252,13 @@ pub fn degenerate_with_blockers(n: usize, coherent: bool) -> (TriangleMesh, Vec<
 }
 
 /// Thin triangles hit at grazing angles, each hit that lies short of its
-/// triangle's corners' box (by more than twice the traversals' slack,
-/// [`raymesh_geometry::CULL_SLACK`]) with a small blocker placed across
-/// the ray halfway between the hit and the box's entry: the known gap of
-/// the README's exactness paragraph, made to show. `slivers` triangles,
-/// each two units long and `2 / α` wide (α from 10 to 10⁴), in planes
-/// flat or within 10⁻³ of flat (a box thin in one axis, whose face a ray
-/// in the plane grazes), far apart; `tries` rays at each, aimed at a
+/// triangle's corners' box (by more than four times the traversals'
+/// slack, [`raymesh_geometry::CULL_SLACK`] of `t`) with a small blocker
+/// placed across the ray halfway between the hit and the box's entry: the
+/// known gap of the README's exactness paragraph, made to show. `slivers`
+/// triangles, each two units long and `2 / α` wide (α from 10 to 10⁴), in
+/// planes flat or tilted by 10⁻³ or 2 × 10⁻³ (a box thin in one axis,
+/// whose face a ray in the plane grazes), far apart; `tries` rays at each, aimed at a
 /// point inside it from 0.5 to 2.5 units away, 10⁻¹ to 10⁻⁶ radians off
 /// its plane. Returns the mesh (the slivers first), the kept rays, and
 /// how many slivers there are.
