@@ -258,9 +258,9 @@ pub fn degenerate_with_blockers(n: usize, coherent: bool) -> (TriangleMesh, Vec<
 /// known gap of the README's exactness paragraph, made to show. `slivers`
 /// triangles, each two units long and `2 / α` wide (α from 10 to 10⁴), in
 /// planes flat or tilted by 10⁻³ or 2 × 10⁻³ (a box thin in one axis,
-/// whose face a ray in the plane grazes), far apart; `tries` rays at each, aimed at a
-/// point inside it from 0.5 to 2.5 units away, 10⁻¹ to 10⁻⁶ radians off
-/// its plane. Returns the mesh (the slivers first), the kept rays, and
+/// whose face a ray in the plane grazes), far apart; `tries` rays at
+/// each, aimed at a point inside it from 0.5 to 2.5 units away, 10⁻¹ to
+/// 10⁻⁶ radians off its plane. Returns the mesh (the slivers first), the kept rays, and
 /// how many slivers there are.
 #[allow(dead_code)]
 pub fn thin_with_blockers(slivers: usize, tries: usize) -> (TriangleMesh, Vec<Ray>, usize) {
