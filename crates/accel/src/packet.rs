@@ -534,11 +534,8 @@ pub(crate) fn triangle(
 
 /// [`triangle`] for each primitive of `prims` in turn (corners given by
 /// `corners`), calling `offer(lane, prim, hit, tmax)` for each lane hit:
-/// a packet traversal's leaf in one AVX2 region
-/// ([`crate::simd::packet_run_avx2`]), the kernel inlined into its loop.
-/// Called per triangle, the region's entry, the kernel's lane arrays and
-/// the hit loop around it took about 3 times the instructions of the test
-/// itself.
+/// a packet traversal's leaf where the walk has no AVX2 (with it,
+/// triangles take [`crate::simd::packet_tris`]).
 #[inline(always)]
 pub(crate) fn triangle_run(
     p: &Packet8,
@@ -548,29 +545,9 @@ pub(crate) fn triangle_run(
     tmax: &mut [f32; LANES],
     offer: &mut impl FnMut(usize, u32, PrimHit, &mut [f32; LANES]),
 ) {
-    #[cfg(target_arch = "x86_64")]
-    if crate::simd::has_avx2() {
-        return crate::simd::packet_run_avx2(p, prims, corners, lanes, tmax, offer);
-    }
-    triangle_run_loop(p, prims, corners, lanes, tmax, offer, lanes_portable);
-}
-
-/// [`triangle_run`]'s loop, inlined into the AVX2 and the portable
-/// callers, with their test of the eight lanes (`kernel`, as
-/// [`lanes_portable`]).
-#[inline(always)]
-pub(crate) fn triangle_run_loop(
-    p: &Packet8,
-    prims: std::ops::Range<u32>,
-    corners: impl Fn(u32) -> [Vec3; 3],
-    lanes: u32,
-    tmax: &mut [f32; LANES],
-    offer: &mut impl FnMut(usize, u32, PrimHit, &mut [f32; LANES]),
-    kernel: impl Fn(&Packet8, [[f32; 3]; 3], &[f32; LANES]) -> (u32, u32, BlockHits),
-) {
     for prim in prims {
         let mut hits = [PrimHit::default(); LANES];
-        let mut m = triangle_lanes(p, corners(prim), lanes, tmax, &mut hits, &kernel);
+        let mut m = triangle_lanes(p, corners(prim), lanes, tmax, &mut hits, lanes_portable);
         while m != 0 {
             let k = m.trailing_zeros() as usize;
             m &= m - 1;
@@ -889,6 +866,116 @@ mod tests {
                         );
                     }
                 }
+            }
+        }
+    }
+
+    /// A leaf's triangles tested one after another against a packet's
+    /// lanes, as a packet walk with AVX2 tests them (`Triangles`'
+    /// `intersect_packet_tris`, [`crate::simd::packet_tris`]), and as one
+    /// without (`intersect_packet_run`, the portable kernel): each makes
+    /// the offers that each lane's ray alone makes, triangle by triangle
+    /// with the bound the hits before left (the scalar test), bit for bit;
+    /// with `ends`, a lane's first hit ends it. In every axis order, at
+    /// scales that send lanes down the `f64` path, with triangles through
+    /// a lane's ray (edge functions of zero), degenerate and repeated
+    /// ones, and leaves that start and end inside the rows' groups.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn packet_leaf_runs_match_each_lanes_scalar_tests() {
+        use crate::Primitives;
+        let Some(avx) = crate::simd::Avx2::detect() else {
+            return;
+        };
+        let mut f = rng(23);
+        for n in 0..600 {
+            let scale = match n % 8 {
+                1 => 2f32.powi(60),
+                2 => 2f32.powi(-60),
+                _ => 1.0,
+            };
+            // Directions' components permuted and flipped: every axis
+            // order and octant.
+            let (perm, flip) = (
+                [[0, 1, 2], [1, 2, 0], [2, 0, 1], [0, 2, 1]][n % 4],
+                n / 4 % 8,
+            );
+            let rays = coherent(&mut f).map(|r| {
+                let d = r.dir().to_array();
+                let d = Vec3::new(d[perm[0]], d[perm[1]], d[perm[2]]);
+                let s = |b: usize| if flip >> b & 1 == 1 { -1.0 } else { 1.0 };
+                let d = d * Vec3::new(s(0), s(1), s(2));
+                Ray::new(r.origin() * scale, d, 0.0, f32::INFINITY)
+            });
+            let p = Packet8::new(&rays).expect("one octant and axis order");
+            let count = 1 + n % 13;
+            let tris: Vec<[Vec3; 3]> = (0..count + 8)
+                .map(|i| {
+                    // Ahead of the lanes, about where they point.
+                    let ahead = rays[i % LANES].origin() + rays[i % LANES].dir() * 3.0 * scale;
+                    let mut t = [0; 3].map(|_| ahead + Vec3::new(f(), f(), f()) * scale);
+                    match (n + i) % 9 {
+                        0 => t[0] = rays[i % LANES].origin() + rays[i % LANES].dir() * 2.0 * scale,
+                        1 => t[2] = t[1],
+                        _ => {}
+                    }
+                    t
+                })
+                .collect();
+            let mut tris = tris;
+            if n % 5 == 0 {
+                tris[count / 2] = tris[0]; // the same triangle twice
+            }
+            let rows = crate::Triangles::from_corners(&tris);
+            let first = (n * 7) % 9;
+            let count = count.min(tris.len() - first);
+            let lanes = if n % 3 == 0 { 0xff } else { 0b0110_1011 };
+            let bound: [f32; LANES] = std::array::from_fn(|i| {
+                if i % 3 == 0 {
+                    f32::INFINITY
+                } else {
+                    (2.0 + f().abs() * 3.0) * scale
+                }
+            });
+            for ends in [false, true] {
+                // Each lane alone: the scalar test, triangle by triangle.
+                let mut want = Vec::new();
+                for (k, r) in rays.iter().enumerate() {
+                    let mut t = bound[k];
+                    if lanes >> k & 1 == 0 {
+                        continue;
+                    }
+                    for (s, c) in tris.iter().enumerate().skip(first).take(count) {
+                        if let Some(h) = intersect_triangle(r, t, c[0], c[1], c[2]) {
+                            want.push((s as u32, k, [h.t, h.u, h.v].map(f32::to_bits)));
+                            t = if ends { f32::NEG_INFINITY } else { h.t };
+                            if ends {
+                                break;
+                            }
+                        }
+                    }
+                }
+                want.sort_unstable();
+                let run = |simd: bool| {
+                    let mut got = Vec::new();
+                    let mut tmax = bound;
+                    let mut offer = |k: usize, prim: u32, h: PrimHit, tmax: &mut [f32; LANES]| {
+                        got.push((prim, k, [h.t, h.u, h.v].map(f32::to_bits)));
+                        tmax[k] = if ends { f32::NEG_INFINITY } else { h.t };
+                    };
+                    let (first, count) = (first as u32, count as u32);
+                    if simd {
+                        rows.intersect_packet_tris(
+                            avx, first, count, &p, lanes, ends, &mut tmax, &mut offer,
+                        );
+                    } else {
+                        rows.intersect_packet_run(first, count, &p, lanes, &mut tmax, &mut offer);
+                    }
+                    got.sort_unstable();
+                    got
+                };
+                assert_eq!(run(true), want, "AVX2, case {n}, ends {ends}");
+                assert_eq!(run(false), want, "portable, case {n}, ends {ends}");
             }
         }
     }

@@ -286,6 +286,30 @@ pub trait Primitives: Send + Sync {
             }
         }
     }
+    /// [`Self::intersect_packet_run`] inside a packet walk compiled for
+    /// AVX2 (the `Avx2` proof): the same results. Where `ends`, a lane
+    /// that `offer` leaves with a `tmax` of `-inf` (an any-hit walk's
+    /// lane, done) is tested no further, and the leaf ends when every lane
+    /// is done. Triangles test each triangle's eight lanes with their
+    /// kernel inlined into the walk (`simd::packet_tris`); the
+    /// default calls [`Self::intersect_packet_run`].
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn intersect_packet_tris(
+        &self,
+        avx: Avx2,
+        first: u32,
+        count: u32,
+        packet: &Packet8,
+        lanes: u32,
+        ends: bool,
+        tmax: &mut [f32; LANES],
+        offer: &mut impl FnMut(usize, u32, PrimHit, &mut [f32; LANES]),
+    ) {
+        let _ = (avx, ends);
+        self.intersect_packet_run(first, count, packet, lanes, tmax, offer);
+    }
     /// Unit geometric normal of primitive `i` at a hit (not flipped toward the ray).
     fn normal(&self, i: u32, ray: &Ray, hit: &PrimHit) -> Vec3;
     /// Puts the primitives in another order, in place: new primitive `k`
@@ -349,6 +373,40 @@ fn redo_lanes<P: Primitives + ?Sized>(
     let lanes = (0..BLOCK).filter(|k| redo >> k & 1 != 0);
     let more = intersect_each(prims, prim, lanes, ray, tmax, &mut out);
     (mask | more, out)
+}
+
+/// The lanes `redo` of a packet against triangle `prim` of `tris` by the
+/// scalar test (its `f64` path), as [`packet::triangle_lanes`] redoes
+/// them: each hit goes to `offer`; returns the lanes hit. Out of line: it
+/// is rare, and the scalar test inlined would crowd the packet walk it
+/// is called from.
+#[cfg(target_arch = "x86_64")]
+#[cold]
+#[inline(never)]
+fn redo_packet_lanes(
+    tris: &Triangles,
+    prim: u32,
+    packet: &Packet8,
+    redo: u32,
+    tmax: &mut [f32; LANES],
+    offer: &mut impl FnMut(usize, u32, PrimHit, &mut [f32; LANES]),
+) -> u32 {
+    let [a, b, c] = tris.corners(prim);
+    let (mut m, mut hit) = (redo, 0);
+    while m != 0 {
+        let k = m.trailing_zeros() as usize;
+        m &= m - 1;
+        if let Some(h) = intersect_triangle(packet.ray(k), tmax[k], a, b, c) {
+            let h = PrimHit {
+                t: h.t,
+                u: h.u,
+                v: h.v,
+            };
+            offer(k, prim, h, tmax);
+            hit |= 1 << k;
+        }
+    }
+    hit
 }
 
 /// Triangles sharing one vertex buffer: the lecture's TriangleMesh.
@@ -889,6 +947,51 @@ impl Primitives for Triangles {
             offer,
         );
     }
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    fn intersect_packet_tris(
+        &self,
+        avx: Avx2,
+        first: u32,
+        count: u32,
+        packet: &Packet8,
+        lanes: u32,
+        ends: bool,
+        tmax: &mut [f32; LANES],
+        offer: &mut impl FnMut(usize, u32, PrimHit, &mut [f32; LANES]),
+    ) {
+        let (first, count) = (first as usize, count as usize);
+        assert!(first + count <= self.len);
+        crate::simd::packet_tris(
+            avx,
+            self.data(),
+            first,
+            count,
+            packet,
+            lanes,
+            tmax,
+            |s, hit, redo, hits, tmax| {
+                let prim = s as u32;
+                let mut m = hit;
+                while m != 0 {
+                    let k = m.trailing_zeros() as usize;
+                    m &= m - 1;
+                    offer(k, prim, hits.get(k), tmax);
+                }
+                let redone = if redo == 0 {
+                    0
+                } else {
+                    redo_packet_lanes(self, prim, packet, redo, tmax, offer)
+                };
+                // Any-hit lanes end at their first hit.
+                if ends {
+                    hit | redone
+                } else {
+                    0
+                }
+            },
+        );
+    }
     fn clip(&self, i: u32, within: Aabb, axis: usize, pos: f32) -> (Aabb, Aabb) {
         clip_triangle(self.corners(i), within, axis, pos)
     }
@@ -1124,6 +1227,21 @@ impl<P: Primitives + ?Sized> Primitives for &P {
         offer: &mut impl FnMut(usize, u32, PrimHit, &mut [f32; LANES]),
     ) {
         (**self).intersect_packet_run(first, count, packet, lanes, tmax, offer);
+    }
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    fn intersect_packet_tris(
+        &self,
+        avx: Avx2,
+        first: u32,
+        count: u32,
+        packet: &Packet8,
+        lanes: u32,
+        ends: bool,
+        tmax: &mut [f32; LANES],
+        offer: &mut impl FnMut(usize, u32, PrimHit, &mut [f32; LANES]),
+    ) {
+        (**self).intersect_packet_tris(avx, first, count, packet, lanes, ends, tmax, offer);
     }
     fn normal(&self, i: u32, ray: &Ray, hit: &PrimHit) -> Vec3 {
         (**self).normal(i, ray, hit)

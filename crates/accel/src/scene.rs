@@ -2164,16 +2164,24 @@ impl<P: Primitives, const ANY: bool> PacketLeaf for WalkLeaf<'_, '_, P, ANY> {
             scene.leaf_lanes::<ANY>(p, (first, count, lanes), tmax, best);
             return;
         }
+        let mut offer = |i: usize, prim, h, tmax: &mut [f32; LANES]| {
+            if !ANY {
+                scene.offer(&mut best[i], &mut tmax[i], prim, h);
+            } else if best[i].is_none() {
+                best[i] = Some((prim, h));
+                tmax[i] = f32::NEG_INFINITY;
+            }
+        };
+        #[cfg(target_arch = "x86_64")]
+        if let Some(avx) = avx {
+            scene
+                .prims
+                .intersect_packet_tris(avx, first, count, p, lanes, ANY, tmax, &mut offer);
+            return;
+        }
         scene
             .prims
-            .intersect_packet_run(first, count, p, lanes, tmax, &mut |i, prim, h, tmax| {
-                if !ANY {
-                    scene.offer(&mut best[i], &mut tmax[i], prim, h);
-                } else if best[i].is_none() {
-                    best[i] = Some((prim, h));
-                    tmax[i] = f32::NEG_INFINITY;
-                }
-            });
+            .intersect_packet_run(first, count, p, lanes, tmax, &mut offer);
     }
 }
 

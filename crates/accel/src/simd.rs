@@ -838,43 +838,6 @@ unsafe fn packet_walk_binary_avx2_impl(
     bvh.packet_loop(p, tmax, leaf, Some(avx));
 }
 
-/// A packet's leaf ([`crate::packet::triangle_run`]) compiled with AVX2,
-/// the packet triangle test inlined into the loop over the leaf: handed to
-/// [`with_avx2`] as a closure, the loop stayed a function of its own,
-/// compiled without AVX2. Panics without AVX2.
-#[cfg(target_arch = "x86_64")]
-pub(crate) fn packet_run_avx2(
-    p: &crate::Packet8,
-    prims: std::ops::Range<u32>,
-    corners: impl Fn(u32) -> [raymesh_geometry::Vec3; 3],
-    lanes: u32,
-    tmax: &mut [f32; crate::LANES],
-    offer: &mut impl FnMut(usize, u32, crate::PrimHit, &mut [f32; crate::LANES]),
-) {
-    assert!(cpu_has_avx2());
-    // SAFETY: the CPU has AVX2 (asserted); the function has no other
-    // requirement.
-    unsafe { packet_run_avx2_impl(p, prims, corners, lanes, tmax, offer) }
-}
-
-/// # Safety
-/// The CPU must have AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn packet_run_avx2_impl(
-    p: &crate::Packet8,
-    prims: std::ops::Range<u32>,
-    corners: impl Fn(u32) -> [raymesh_geometry::Vec3; 3],
-    lanes: u32,
-    tmax: &mut [f32; crate::LANES],
-    offer: &mut impl FnMut(usize, u32, crate::PrimHit, &mut [f32; crate::LANES]),
-) {
-    // SAFETY (of each call): this function runs only on CPUs with AVX2.
-    crate::packet::triangle_run_loop(p, prims, corners, lanes, tmax, offer, |p, c, t| unsafe {
-        packet_lanes_avx(p, c, t)
-    });
-}
-
 /// [`crate::packet::triangle`] with the lanes' test in AVX2
 /// ([`packet_lanes_avx`]). Panics without AVX2.
 #[cfg(target_arch = "x86_64")]
@@ -1774,6 +1737,75 @@ pub(crate) fn triangles8_lanes(
             unsafe { triangles8_loaded(&block, ray.shear, ray.origin, ray.tmin, tmax[i]) };
         let (hit, redo, out) = active_lanes(hit, count, out);
         each(i, hit, redo, out);
+    }
+}
+
+/// The eight lanes of the packet `p` against each triangle of slots
+/// `first..first + count` of rows grouped as [`crate::Triangles`] lays
+/// them out, in turn: one [`packet_lanes_avx`] test a triangle, its nine
+/// coordinates read straight from the rows in the packet's axis order
+/// (`p.block_axes`), inside the walk's AVX2 code. Triangle `s` is tested
+/// against the lanes' bounds as the hits before left `tmax`; where it
+/// hits a lane of `live` or leaves one to redo, `each(s, hit, redo,
+/// hits, tmax)` takes the masks (within `live`; `hit` without `redo`)
+/// and the lanes' `t`, `u`, `v`, may lower `tmax`, and returns the lanes
+/// it has ended, which are tested no further (the loop stops when none
+/// is left). The same masks and bits as
+/// [`crate::packet::triangle_lanes`] of the triangle's corners.
+///
+/// A packet's leaf reached by many of its lanes is tested so: the
+/// triangle-by-triangle test it replaces ([`crate::packet::triangle_run`])
+/// made a call a triangle and gathered each triangle's corners through
+/// the stack.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn packet_tris(
+    _avx: Avx2,
+    data: &[f32],
+    first: usize,
+    count: usize,
+    p: &crate::Packet8,
+    live: u32,
+    tmax: &mut [f32; 8],
+    mut each: impl FnMut(usize, u32, u32, &BlockHits, &mut [f32; 8]) -> u32,
+) {
+    if count == 0 {
+        return;
+    }
+    let end = first + count;
+    // The last slot's group ends within `data`: every read below is of a
+    // slot's group, at a row offset of at most 64 (row 8) plus its lane.
+    assert!((end - 1) / GROUP_SLOTS * GROUP + GROUP <= data.len());
+    let axes = p.block_axes;
+    assert!(axes.iter().all(|&a| a <= 2 * GROUP_SLOTS));
+    let mut live = live;
+    for s in first..end {
+        let base = s / GROUP_SLOTS * GROUP + s % GROUP_SLOTS;
+        // Corner `c`'s coordinate on the packet's `a`-th axis: row `3c +
+        // k[a]` of the slot's group (`axes[a]` is `8 k[a]`).
+        macro_rules! at {
+            ($c:expr, $a:expr) => {
+                // SAFETY: `base` lies in the slot's group, `axes[a]` is at
+                // most 16 and the corner's rows at most 48 further, so
+                // the float lies in that group, inside `data` (asserted).
+                unsafe { *data.get_unchecked(base + axes[$a] + 3 * $c * GROUP_SLOTS) }
+            };
+        }
+        let c = [
+            [at!(0, 0), at!(0, 1), at!(0, 2)],
+            [at!(1, 0), at!(1, 1), at!(1, 2)],
+            [at!(2, 0), at!(2, 1), at!(2, 2)],
+        ];
+        // SAFETY: the CPU has AVX2 (the `Avx2` proof).
+        let (ok, redo, hits) = unsafe { packet_lanes_avx(p, c, tmax) };
+        let (redo, hit) = (redo & live, ok & live & !redo);
+        if hit | redo != 0 {
+            live &= !each(s, hit, redo, &hits, tmax);
+            if live == 0 {
+                return;
+            }
+        }
     }
 }
 
