@@ -3,8 +3,8 @@
 //! switch, so this file is its own test process), every BVH over
 //! [`Triangles`] (and the k-d tree and grid, whose leaves gather
 //! triangles into blocks) still returns brute force's bits, and the same
-//! as with the kernels on, one ray at a time (as a `Ray` and as a row)
-//! and as a stream.
+//! as with the kernels on, one ray at a time (as a `Ray` and as a row),
+//! as a stream, and in packets of eight.
 
 use raymesh_accel::*;
 
@@ -63,6 +63,33 @@ fn fallbacks_agree_with_brute_force_and_with_the_kernels() {
                             row_answers(&s, &row),
                             (want[i], key(s.any_hit(r)), want[i].is_some()),
                             "{name} {kind} simd={on}: row {i}"
+                        );
+                    }
+                }
+                // Packets: eight copies of each ray (a packet whose every
+                // lane reaches every leaf it does, so its leaves take the
+                // triangle-by-triangle test), and each eight consecutive
+                // rays (a packet where they share an octant and axis
+                // order, one by one where not).
+                for (i, r) in rays.iter().enumerate() {
+                    let p = [*r; 8];
+                    let (hits, any, occluded) = (s.intersect8(&p), s.any_hit8(&p), s.occluded8(&p));
+                    for k in 0..8 {
+                        let what =
+                            format!("{name} {kind} simd={on}: ray {i} in a packet, lane {k}");
+                        assert_eq!(key(hits[k]), want[i], "{what}");
+                        assert_eq!(any[k].is_some(), want[i].is_some(), "{what}");
+                        assert_eq!(occluded[k], want[i].is_some(), "{what}");
+                    }
+                }
+                for (c, eight) in rays.chunks_exact(8).enumerate() {
+                    let p: [Ray; 8] = std::array::from_fn(|k| eight[k]);
+                    let hits = s.intersect8(&p);
+                    for k in 0..8 {
+                        assert_eq!(
+                            key(hits[k]),
+                            want[8 * c + k],
+                            "{name} {kind} simd={on}: packet {c}, lane {k}"
                         );
                     }
                 }
