@@ -1728,6 +1728,25 @@ pub(crate) fn triangles8_lanes(
         )
     };
     let mut m = lanes;
+    // SAFETY: the CPU has AVX2 (the `Avx2` proof).
+    if unsafe { same_origin(p) } {
+        // Every lane's origin the same, bit for bit (a camera's rays):
+        // the rows relative to it, the kernel's first nine operations,
+        // are the same for every lane, so made once.
+        let o = [p.porigin[0][0], p.porigin[1][0], p.porigin[2][0]];
+        // SAFETY: the CPU has AVX2 (the `Avx2` proof).
+        let rel = unsafe { relative8(&block, o) };
+        while m != 0 {
+            let i = m.trailing_zeros() as usize;
+            m &= m - 1;
+            let ray = BlockRay::lane(p, i);
+            // SAFETY: the CPU has AVX2 (the `Avx2` proof).
+            let (hit, out) = unsafe { triangles8_relative(&rel, ray.shear, ray.tmin, tmax[i]) };
+            let (hit, redo, out) = active_lanes(hit, count, out);
+            each(i, hit, redo, out);
+        }
+        return;
+    }
     while m != 0 {
         let i = m.trailing_zeros() as usize;
         m &= m - 1;
@@ -1738,6 +1757,27 @@ pub(crate) fn triangles8_lanes(
         let (hit, redo, out) = active_lanes(hit, count, out);
         each(i, hit, redo, out);
     }
+}
+
+/// Whether every lane of `p` has the same origin, bit for bit (as a
+/// pinhole camera's rays do): three integer comparisons of the origin's
+/// rows with their first lane (a float comparison would take `-0.0` for
+/// `0.0`, whose differences with a corner can differ in sign).
+///
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn same_origin(p: &crate::Packet8) -> bool {
+    use std::arch::x86_64::*;
+    macro_rules! row {
+        ($a:expr) => {{
+            let r = _mm256_loadu_si256(p.porigin[$a].as_ptr().cast());
+            _mm256_cmpeq_epi32(r, _mm256_set1_epi32(p.porigin[$a][0].to_bits() as i32))
+        }};
+    }
+    let eq = _mm256_and_si256(_mm256_and_si256(row!(0), row!(1)), row!(2));
+    _mm256_movemask_epi8(eq) == -1
 }
 
 /// The eight lanes of the packet `p` against each triangle of slots
@@ -1994,25 +2034,69 @@ unsafe fn triangles8_loaded(
     tmin: f32,
     tmax: f32,
 ) -> (u32, BlockHits) {
+    // SAFETY: as this function's contract.
+    unsafe { triangles8_relative(&relative8(block, origin), shear, tmin, tmax) }
+}
+
+/// A block's rows ([`load_block8`]) relative to a ray origin (permuted as
+/// the rows are): each corner's coordinates less the origin's, the first
+/// step of [`triangles8_loaded`]. Rays that share their origin, as a
+/// camera's do, share these.
+///
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn relative8(
+    block: &[std::arch::x86_64::__m256; 9],
+    origin: [f32; 3],
+) -> [std::arch::x86_64::__m256; 9] {
+    use std::arch::x86_64::*;
+    // Written out, not through closures, whose intrinsics would stay
+    // calls where this inlines.
+    let (ox, oy, oz) = (
+        _mm256_set1_ps(origin[0]),
+        _mm256_set1_ps(origin[1]),
+        _mm256_set1_ps(origin[2]),
+    );
+    [
+        _mm256_sub_ps(block[0], ox),
+        _mm256_sub_ps(block[1], oy),
+        _mm256_sub_ps(block[2], oz),
+        _mm256_sub_ps(block[3], ox),
+        _mm256_sub_ps(block[4], oy),
+        _mm256_sub_ps(block[5], oz),
+        _mm256_sub_ps(block[6], ox),
+        _mm256_sub_ps(block[7], oy),
+        _mm256_sub_ps(block[8], oz),
+    ]
+}
+
+/// [`triangles8_loaded`] of rows already made relative to the ray's
+/// origin ([`relative8`]).
+///
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn triangles8_relative(
+    rel: &[std::arch::x86_64::__m256; 9],
+    shear: [f32; 3],
+    tmin: f32,
+    tmax: f32,
+) -> (u32, BlockHits) {
     use std::arch::x86_64::*;
     let (sx, sy, sz) = (
         _mm256_set1_ps(shear[0]),
         _mm256_set1_ps(shear[1]),
         _mm256_set1_ps(shear[2]),
     );
-    let (ox, oy, oz) = (
-        _mm256_set1_ps(origin[0]),
-        _mm256_set1_ps(origin[1]),
-        _mm256_set1_ps(origin[2]),
-    );
     // Corner `c` relative to the ray origin and sheared to 2D, in the
     // scalar test's order of operations (a macro, not a closure, so that
     // the intrinsics inline wherever this function does).
     macro_rules! shear {
         ($c:expr) => {{
-            let x = _mm256_sub_ps(block[3 * $c], ox);
-            let y = _mm256_sub_ps(block[3 * $c + 1], oy);
-            let z = _mm256_sub_ps(block[3 * $c + 2], oz);
+            let (x, y, z) = (rel[3 * $c], rel[3 * $c + 1], rel[3 * $c + 2]);
             (
                 _mm256_sub_ps(x, _mm256_mul_ps(sx, z)),
                 _mm256_sub_ps(y, _mm256_mul_ps(sy, z)),
@@ -2108,7 +2192,7 @@ unsafe fn triangles8_loaded(
         );
         // Each corner's relative `z`, unsheared (`az` is `shear[2]` times
         // it in f32, which may have overflowed).
-        let z = |c: usize| lanes(_mm256_sub_ps(block[3 * c + 2], oz));
+        let z = |c: usize| lanes(rel[3 * c + 2]);
         let z = [z(0), z(1), z(2)];
         let sz = f64::from(shear[2]);
         let d = f64::from;
