@@ -287,12 +287,13 @@ pub trait Primitives: Send + Sync {
         }
     }
     /// [`Self::intersect_packet_run`] inside a packet walk compiled for
-    /// AVX2 (the `Avx2` proof): the same results. Where `ends`, a lane
-    /// that `offer` leaves with a `tmax` of `-inf` (an any-hit walk's
-    /// lane, done) is tested no further, and the leaf ends when every lane
-    /// is done. Triangles test each triangle's eight lanes with their
-    /// kernel inlined into the walk (`simd::packet_tris`); the
-    /// default calls [`Self::intersect_packet_run`].
+    /// AVX2 (the `Avx2` proof): the same results. `ends` says that
+    /// `offer` ends each lane at its first hit (an any-hit walk's leaf,
+    /// whose `offer` sets the lane's `tmax` to `-inf`): a lane hit is then
+    /// tested no further, and the leaf stops once every lane is hit.
+    /// Triangles test each triangle's eight lanes with their kernel
+    /// inlined into the walk (`simd::packet_tris`); the default calls
+    /// [`Self::intersect_packet_run`].
     #[cfg(target_arch = "x86_64")]
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
