@@ -588,11 +588,7 @@ pub(crate) fn triangle_lanes(
         m &= m - 1;
         let [a, b, cc] = corners;
         if let Some(h) = intersect_triangle(p.ray(i), tmax[i], a, b, cc) {
-            out[i] = PrimHit {
-                t: h.t,
-                u: h.u,
-                v: h.v,
-            };
+            out[i] = PrimHit::from(h);
             hit |= 1 << i;
         }
     }

@@ -5,7 +5,7 @@ use crate::pages::{Pages, PagesMut};
 use crate::simd::{block_at, Avx2, BlockRay, GROUP, GROUP_SLOTS};
 use raymesh_geometry::{
     clip_triangle, intersect_sphere, intersect_triangle, triangle_hit_bounds, triangle_normal,
-    Aabb, Ray, Sphere, Vec3,
+    Aabb, Ray, Sphere, SphereHit, TriHit, Vec3,
 };
 use rayon::prelude::*;
 
@@ -19,6 +19,30 @@ pub struct PrimHit {
     pub u: f32,
     /// Second surface coordinate.
     pub v: f32,
+}
+
+impl From<TriHit> for PrimHit {
+    /// A triangle's hit: `u` and `v` the second and third corners' weights.
+    #[inline(always)]
+    fn from(h: TriHit) -> Self {
+        Self {
+            t: h.t,
+            u: h.u,
+            v: h.v,
+        }
+    }
+}
+
+impl From<SphereHit> for PrimHit {
+    /// A sphere's hit: `u` and `v` its azimuth and polar angle, scaled.
+    #[inline(always)]
+    fn from(h: SphereHit) -> Self {
+        Self {
+            t: h.t,
+            u: h.u,
+            v: h.v,
+        }
+    }
 }
 
 /// What a block test ([`Primitives::intersect_block`]) finds, lane by
@@ -398,12 +422,7 @@ fn redo_packet_lanes(
         let k = m.trailing_zeros() as usize;
         m &= m - 1;
         if let Some(h) = intersect_triangle(packet.ray(k), tmax[k], a, b, c) {
-            let h = PrimHit {
-                t: h.t,
-                u: h.u,
-                v: h.v,
-            };
-            offer(k, prim, h, tmax);
+            offer(k, prim, PrimHit::from(h), tmax);
             hit |= 1 << k;
         }
     }
@@ -488,11 +507,7 @@ impl Primitives for TriangleMesh {
     #[inline(always)]
     fn intersect(&self, i: u32, ray: &Ray, tmax: f32) -> Option<PrimHit> {
         let [a, b, c] = self.corners(i);
-        intersect_triangle(ray, tmax, a, b, c).map(|h| PrimHit {
-            t: h.t,
-            u: h.u,
-            v: h.v,
-        })
+        intersect_triangle(ray, tmax, a, b, c).map(PrimHit::from)
     }
     #[inline(always)]
     fn intersect_packet(
@@ -760,11 +775,7 @@ impl Primitives for Triangles {
     #[inline(always)]
     fn intersect(&self, i: u32, ray: &Ray, tmax: f32) -> Option<PrimHit> {
         let [a, b, c] = self.corners(i);
-        intersect_triangle(ray, tmax, a, b, c).map(|h| PrimHit {
-            t: h.t,
-            u: h.u,
-            v: h.v,
-        })
+        intersect_triangle(ray, tmax, a, b, c).map(PrimHit::from)
     }
     #[inline(always)]
     fn intersect_block(&self, first: u32, count: u32, ray: &Ray, tmax: f32) -> (u32, BlockHits) {
@@ -1045,11 +1056,7 @@ impl Primitives for Spheres {
     #[inline]
     fn intersect(&self, i: u32, ray: &Ray, tmax: f32) -> Option<PrimHit> {
         let s = self.0[i as usize];
-        intersect_sphere(ray, tmax, s.center, s.radius).map(|h| PrimHit {
-            t: h.t,
-            u: h.u,
-            v: h.v,
-        })
+        intersect_sphere(ray, tmax, s.center, s.radius).map(PrimHit::from)
     }
     fn normal(&self, i: u32, ray: &Ray, hit: &PrimHit) -> Vec3 {
         self.0[i as usize].normal_at(ray.at(hit.t))
@@ -1087,17 +1094,9 @@ impl Primitives for Shapes {
     fn intersect(&self, i: u32, ray: &Ray, tmax: f32) -> Option<PrimHit> {
         match &self.0[i as usize] {
             Shape::Triangle([a, b, c]) => {
-                intersect_triangle(ray, tmax, *a, *b, *c).map(|h| PrimHit {
-                    t: h.t,
-                    u: h.u,
-                    v: h.v,
-                })
+                intersect_triangle(ray, tmax, *a, *b, *c).map(PrimHit::from)
             }
-            Shape::Sphere(s) => intersect_sphere(ray, tmax, s.center, s.radius).map(|h| PrimHit {
-                t: h.t,
-                u: h.u,
-                v: h.v,
-            }),
+            Shape::Sphere(s) => intersect_sphere(ray, tmax, s.center, s.radius).map(PrimHit::from),
         }
     }
     fn clip(&self, i: u32, within: Aabb, axis: usize, pos: f32) -> (Aabb, Aabb) {
