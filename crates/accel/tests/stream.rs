@@ -15,6 +15,7 @@ use raymesh_geometry::Sphere;
 mod common;
 use common::{
     bare_bits, bare_of, hit_bits as key, load, point, soup, tri_mesh, uniform, unit_grid,
+    worth_checking,
 };
 
 /// The BVHs take streams; the others trace one by one.
@@ -73,6 +74,9 @@ fn check<P: Primitives>(s: &Scene<P>, rays: &[Ray], what: &str) -> usize {
 fn check_mesh(m: &TriangleMesh, rays: &[Ray]) -> usize {
     let mut hits = 0;
     for kind in KINDS {
+        if !worth_checking(kind, m.triangles.len()) {
+            continue;
+        }
         hits = hits.max(check(
             &Scene::from_mesh(m, kind),
             rays,

@@ -17,6 +17,17 @@ pub fn cases(default: u32) -> u32 {
         .unwrap_or(default)
 }
 
+/// Whether a check of packets or streams against one-by-one tracing runs
+/// `kind` over a mesh of `triangles`: brute force's packets and streams
+/// are its rays one by one, checked over the small meshes; over the
+/// elephant's 4,463 triangles its scalar tests took three quarters of
+/// `packets.rs`' and `stream.rs`' real-mesh tests (4–5 s each, and a
+/// minute each in `.ci/run`'s emulated aarch64 step).
+#[allow(dead_code)] // not every test file checks packets or streams
+pub fn worth_checking(kind: AccelKind, triangles: usize) -> bool {
+    kind != AccelKind::Brute || triangles <= 2_000
+}
+
 /// A mesh from the repository's `tests/data`, fan-triangulated.
 pub fn load(name: &str) -> TriangleMesh {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
