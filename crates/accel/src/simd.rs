@@ -1727,33 +1727,32 @@ pub(crate) fn triangles8_lanes(
             span,
         )
     };
-    let mut m = lanes;
+    // Every lane's origin the same, bit for bit (a camera's rays): the
+    // rows relative to it, the kernel's first nine operations, are the
+    // same for every lane, so made once, in place of the block's (one set
+    // of nine rows live across the loop either way).
     // SAFETY: the CPU has AVX2 (the `Avx2` proof).
-    if unsafe { same_origin(p) } {
-        // Every lane's origin the same, bit for bit (a camera's rays):
-        // the rows relative to it, the kernel's first nine operations,
-        // are the same for every lane, so made once.
+    let shared = unsafe { same_origin(p) };
+    let rows = if shared {
         let o = [p.porigin[0][0], p.porigin[1][0], p.porigin[2][0]];
         // SAFETY: the CPU has AVX2 (the `Avx2` proof).
-        let rel = unsafe { relative8(&block, o) };
-        while m != 0 {
-            let i = m.trailing_zeros() as usize;
-            m &= m - 1;
-            let ray = BlockRay::lane(p, i);
-            // SAFETY: the CPU has AVX2 (the `Avx2` proof).
-            let (hit, out) = unsafe { triangles8_relative(&rel, ray.shear, ray.tmin, tmax[i]) };
-            let (hit, redo, out) = active_lanes(hit, count, out);
-            each(i, hit, redo, out);
-        }
-        return;
-    }
+        unsafe { relative8(&block, o) }
+    } else {
+        block
+    };
+    let mut m = lanes;
     while m != 0 {
         let i = m.trailing_zeros() as usize;
         m &= m - 1;
         let ray = BlockRay::lane(p, i);
         // SAFETY: the CPU has AVX2 (the `Avx2` proof).
-        let (hit, out) =
-            unsafe { triangles8_loaded(&block, ray.shear, ray.origin, ray.tmin, tmax[i]) };
+        let (hit, out) = unsafe {
+            if shared {
+                triangles8_relative(&rows, ray.shear, ray.tmin, tmax[i])
+            } else {
+                triangles8_loaded(&rows, ray.shear, ray.origin, ray.tmin, tmax[i])
+            }
+        };
         let (hit, redo, out) = active_lanes(hit, count, out);
         each(i, hit, redo, out);
     }
