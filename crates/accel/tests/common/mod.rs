@@ -21,8 +21,9 @@ pub fn cases(default: u32) -> u32 {
 /// `kind` over a mesh of `triangles`: brute force's packets and streams
 /// are its rays one by one, checked over the small meshes; over the
 /// elephant's 4,463 triangles its scalar tests took three quarters of
-/// `packets.rs`' and `stream.rs`' real-mesh tests (4–5 s each, and a
-/// minute each in `.ci/run`'s emulated aarch64 step).
+/// the real-mesh tests of packets and streams (`agree`'s `packets::` and
+/// `stream::`: 4–5 s each, and a minute each in `.ci/run`'s emulated
+/// aarch64 step).
 #[allow(dead_code)] // not every test file checks packets or streams
 pub fn worth_checking(kind: AccelKind, triangles: usize) -> bool {
     kind != AccelKind::Brute || triangles <= 2_000

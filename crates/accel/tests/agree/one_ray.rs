@@ -7,7 +7,7 @@ use proptest::prelude::*;
 use raymesh_accel::*;
 use raymesh_geometry::{Mat4, Sphere};
 
-mod common;
+use crate::common;
 use common::{bare_bits, bare_of, hit_bits, load, row_answers, row_of, tri_mesh};
 
 const KINDS: [AccelKind; 8] = [

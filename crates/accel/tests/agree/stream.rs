@@ -12,7 +12,7 @@ use proptest::prelude::*;
 use raymesh_accel::*;
 use raymesh_geometry::Sphere;
 
-mod common;
+use crate::common;
 use common::{
     bare_bits, bare_of, hit_bits as key, load, point, soup, tri_mesh, uniform, unit_grid,
     worth_checking,

@@ -8,7 +8,7 @@ use proptest::prelude::*;
 use raymesh_accel::*;
 use raymesh_geometry::{intersect_triangle, Mat4, Sphere};
 
-mod common;
+use crate::common;
 use common::{
     bare_bits, bare_of, hit_bits as key, load, point, soup, tri_mesh, unit_grid, worth_checking,
 };
