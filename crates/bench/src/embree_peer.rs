@@ -326,11 +326,7 @@ struct Item {
 ///
 /// The scene's shared buffers give the triangles: `vertices` three floats
 /// a vertex (and a padding float), `indices` three a triangle.
-pub fn builder_sah(
-    device: RTCDevice,
-    vertices: &[f32],
-    indices: &[u32],
-) -> crate::engines::TreeCost {
+fn builder_sah(device: RTCDevice, vertices: &[f32], indices: &[u32]) -> crate::engines::TreeCost {
     let zero = crate::engines::TreeCost {
         sah: 0.0,
         node_tests: 0.0,

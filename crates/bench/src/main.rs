@@ -11,18 +11,15 @@
 //! structures (`--accel bvh8,grid,kdtree`) run side by side in the same
 //! run, each as an engine of its own.
 
-mod chart;
-#[cfg(feature = "embree")]
-mod embree_peer;
-mod engines;
-mod thread_list;
-
 use anyhow::{bail, ensure, Context, Result};
 use clap::Parser;
-use engines::{structure_engine, structure_of, Answer, Engine, Runner, OPT_IN_PEERS, RUST_PEERS};
 use raymesh::npy;
 use raymesh::workload::{make_rays, Workload};
 use raymesh_accel::{AccelKind, BuildConfig, Scene, TriangleMesh};
+use raymesh_bench::engines::{
+    structure_engine, structure_of, Answer, Engine, Runner, OPT_IN_PEERS, RUST_PEERS,
+};
+use raymesh_bench::{chart, thread_list, Trace};
 use raymesh_mesh::io::read_mesh;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -283,68 +280,6 @@ impl Build {
     }
 }
 
-/// One engine's pass over one workload.
-#[derive(Serialize)]
-struct Trace {
-    kind: &'static str,
-    mesh: String,
-    workload: String,
-    threads: usize,
-    query: &'static str,
-    engine: &'static str,
-    /// The raymesh structure, for raymesh's engines.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    accel: Option<&'static str>,
-    mrays_per_s: f64,
-    /// raymesh's Mrays/s over this engine's.
-    raymesh_ratio: f64,
-    /// Share of rays whose answer matches the reference engine's.
-    agree: f64,
-    agree_with: &'static str,
-}
-
-impl Trace {
-    /// `engine`'s pass over `workload` (`any`: any-hit queries) at `threads`
-    /// threads (over raymesh structure `accel`, for raymesh's engines),
-    /// its hits agreeing with `agree_with`'s on a fraction `agree` of the
-    /// rays; raymesh's ratio is filled in once every engine has run.
-    #[allow(clippy::too_many_arguments)]
-    fn new(
-        mesh: &str,
-        workload: &str,
-        threads: usize,
-        any: bool,
-        engine: &'static str,
-        accel: Option<AccelKind>,
-        mrays_per_s: f64,
-        agree: f64,
-        agree_with: &'static str,
-    ) -> Self {
-        Self {
-            kind: "trace",
-            mesh: mesh.to_string(),
-            workload: workload.to_string(),
-            threads,
-            query: if any { "any-hit" } else { "closest" },
-            engine,
-            accel: accel.map(AccelKind::name),
-            mrays_per_s,
-            raymesh_ratio: f64::NAN,
-            agree,
-            agree_with,
-        }
-    }
-
-    /// Whether `other` measured the same case (mesh, workload, thread
-    /// count and query), whatever the engine.
-    fn same_case(&self, other: &Trace) -> bool {
-        self.mesh == other.mesh
-            && self.workload == other.workload
-            && self.threads == other.threads
-            && self.query == other.query
-    }
-}
-
 /// Table cells: `cell` of each item, joined by ` | `.
 fn cells<T>(items: &[T], cell: impl Fn(&T) -> String) -> String {
     items.iter().map(cell).collect::<Vec<_>>().join(" | ")
@@ -405,7 +340,7 @@ fn build_engine(
     #[cfg(feature = "embree")]
     if name == "embree" {
         let high = quality == Quality::High;
-        return Box::new(embree_peer::EmbreeScene::new(
+        return Box::new(raymesh_bench::embree_peer::EmbreeScene::new(
             positions,
             triangles,
             threads,
@@ -422,7 +357,7 @@ fn build_engine(
         spatial_splits: if high { 0.25 } else { 0.0 },
         ..BuildConfig::default()
     };
-    engines::build(name, accel, &config, positions, triangles)
+    raymesh_bench::engines::build(name, accel, &config, positions, triangles)
 }
 
 /// `--interleave`'s pass over one mesh at one thread count: every engine

@@ -11,7 +11,7 @@
 
 #[cfg(feature = "openmesh")]
 mod openmesh_peer;
-mod thread_list;
+use raymesh_bench::thread_list;
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
