@@ -97,6 +97,17 @@ impl HalfEdgeMesh {
         self.outgoing_halfedges(v).count()
     }
 
+    /// The half-edge from `from` to `to`, if an edge joins them (the first
+    /// met counter-clockwise around `from`), as OpenMesh's
+    /// `find_halfedge`: how an edge is named by its two vertices, to flip,
+    /// split or collapse it. `None` for a deleted or isolated `from`.
+    /// Panics if `from` is not a vertex of the mesh.
+    #[must_use]
+    pub fn find_halfedge(&self, from: Vertex, to: Vertex) -> Option<HalfEdge> {
+        self.outgoing_halfedges(from)
+            .find(|&h| self.to_vertex(h) == to)
+    }
+
     /// Half-edges of face `f`, in its winding order.
     #[must_use]
     pub fn face_halfedges(&self, f: Face) -> Circulator<'_> {

@@ -564,3 +564,54 @@ fn flip_split_collapse_by_hand() {
     assert!(!t.flip(Edge(0)));
     assert!(!t.collapse(HalfEdge(0)));
 }
+
+/// `find_halfedge` names each half-edge by its two vertices, and finds
+/// none between vertices no edge joins, nor from a deleted vertex.
+#[test]
+fn find_halfedge_finds_each_half_edge_by_its_vertices() {
+    for name in [
+        "elephant-with-holes.off",
+        "mesh_with_border.off",
+        "cube_quad.off",
+    ] {
+        let (mut h, _) = build(&data(name));
+        for i in 0..h.num_halfedges() {
+            let he = HalfEdge::new(i);
+            let (a, b) = (h.from_vertex(he), h.to_vertex(he));
+            assert_eq!(h.find_halfedge(a, b), Some(he), "{name}: half-edge {i}");
+        }
+        // Every pair of vertices of one face that no edge joins: a
+        // quad's diagonals, and around each vertex its neighbours'
+        // other neighbours.
+        let v0 = Vertex::new(0);
+        let ring: Vec<Vertex> = h.vertex_vertices(v0).collect();
+        for w in (0..h.num_vertices()).map(Vertex::new) {
+            let joined = ring.contains(&w);
+            assert_eq!(
+                h.find_halfedge(v0, w).is_some(),
+                joined,
+                "{name}: 0 -> {w:?}"
+            );
+            assert_eq!(
+                h.find_halfedge(w, v0).is_some(),
+                joined,
+                "{name}: {w:?} -> 0"
+            );
+        }
+        // A collapsed-away vertex has no half-edges left (the cube's
+        // quads take no collapse).
+        let Some(he) = (0..h.num_halfedges())
+            .map(HalfEdge::new)
+            .find(|&he| h.is_collapse_ok(he))
+        else {
+            assert_eq!(name, "cube_quad.off");
+            continue;
+        };
+        let gone = h.from_vertex(he);
+        assert!(h.collapse(he));
+        assert!(h.is_deleted_vertex(gone));
+        for w in (0..h.num_vertices()).map(Vertex::new) {
+            assert_eq!(h.find_halfedge(gone, w), None, "{name}: deleted {gone:?}");
+        }
+    }
+}
