@@ -84,4 +84,82 @@ uint64_t raymesh_om_loop(const void* mp, size_t* faces) {
     return static_cast<uint64_t>(ns);
 }
 
+// What an edit pass left: an order-free signature of the connectivity
+// (every live vertex's neighbours, each pair mixed and summed, by the
+// vertices' indices before any garbage collection), the live vertex,
+// edge and face counts, and how many edits were made. raymesh-mesh-peers
+// computes the same of its own mesh.
+struct RmEdits {
+    uint64_t ring;
+    size_t vertices, edges, faces, done;
+};
+
+static uint64_t mix(uint64_t v, uint64_t w) {
+    return ((v << 32) | w) * 0x9E3779B97F4A7C15ull;
+}
+
+static uint64_t ring_signature(const Mesh& m) {
+    uint64_t s = 0;
+    for (auto v : m.all_vertices()) {
+        if (m.has_vertex_status() && m.status(v).deleted()) continue;
+        for (auto w : m.vv_range(v)) s += mix(v.idx(), w.idx());
+    }
+    return s;
+}
+
+static uint64_t since(std::chrono::steady_clock::time_point start) {
+    return static_cast<uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(
+        std::chrono::steady_clock::now() - start).count());
+}
+
+// The edges named by `n` vertex pairs (`pairs[2 i]` to `pairs[2 i + 1]`,
+// looked up by `find_halfedge`), on a copy of the mesh (the copy not
+// timed): `kind` 0 splits each at its midpoint (`split`: the two
+// triangles beside it become four), 1 flips each that `is_flip_ok`
+// allows, 2 collapses each half-edge that `is_collapse_ok` allows and
+// then collects the garbage. Returns the nanoseconds the edits took
+// (with the garbage collection, without the signature taken before it).
+uint64_t raymesh_om_edit(const void* mp, int kind, const uint32_t* pairs, size_t n, RmEdits* out) {
+    Mesh m = *static_cast<const Mesh*>(mp);
+    if (kind == 2) {
+        m.request_vertex_status();
+        m.request_edge_status();
+        m.request_face_status();
+        m.request_halfedge_status();
+    }
+    size_t done = 0;
+    auto start = std::chrono::steady_clock::now();
+    for (size_t i = 0; i < n; ++i) {
+        Mesh::HalfedgeHandle h = m.find_halfedge(
+            m.vertex_handle(pairs[2 * i]), m.vertex_handle(pairs[2 * i + 1]));
+        if (!h.is_valid()) continue;
+        Mesh::EdgeHandle e = m.edge_handle(h);
+        if (kind == 0) {
+            Mesh::Point p = (m.point(m.from_vertex_handle(h)) + m.point(m.to_vertex_handle(h))) * 0.5f;
+            m.split(e, p);
+            ++done;
+        } else if (kind == 1) {
+            if (m.is_flip_ok(e)) {
+                m.flip(e);
+                ++done;
+            }
+        } else if (m.is_collapse_ok(h)) {
+            m.collapse(h);
+            ++done;
+        }
+    }
+    uint64_t ns = since(start);
+    out->ring = ring_signature(m);
+    if (kind == 2) {
+        start = std::chrono::steady_clock::now();
+        m.garbage_collection();
+        ns += since(start);
+    }
+    out->vertices = m.n_vertices();
+    out->edges = m.n_edges();
+    out->faces = m.n_faces();
+    out->done = done;
+    return ns;
+}
+
 }  // extern "C"

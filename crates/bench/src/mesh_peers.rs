@@ -2,12 +2,19 @@
 //! [--markdown]`: raymesh's half-edge mesh against OpenMesh 9 (built with
 //! `--features openmesh`) on the operations `raymesh mesh --bench` times,
 //! in one run: building the connectivity from indexed triangles, walking
-//! every vertex's one-ring, vertex normals, and one Loop step. The two
-//! take turns: a pass of every operation for raymesh, then one for
-//! OpenMesh, `--repeat` times; each reports its best. OpenMesh runs on one
-//! thread; raymesh in a pool of each given size. Each operation's results
-//! are compared (counts, the one-ring's neighbours, the faces after Loop),
-//! so that the two are seen to do the same work.
+//! every vertex's one-ring, vertex normals, and one Loop step; and on the
+//! edits OpenMesh users make: every edge split at its midpoint, flipped
+//! where a flip is allowed, collapsed where a collapse is allowed (then
+//! the garbage collected), each over every edge of the mesh in one order
+//! (the triangles', each edge named by its two vertices and looked up by
+//! `find_halfedge`), on a copy. The two take turns: a pass of every
+//! operation for raymesh, then one for OpenMesh, `--repeat` times; each
+//! reports its best. OpenMesh runs on one thread; raymesh in a pool of
+//! each given size (the edits are sequential in both). Each operation's
+//! results are compared (counts, the one-ring's neighbours, the faces
+//! after Loop, and after each edit pass the live counts, the number of
+//! edits made and a signature of every vertex's neighbours), so that the
+//! two are seen to do the same work.
 
 #[cfg(feature = "openmesh")]
 mod openmesh_peer;
@@ -19,6 +26,7 @@ use raymesh_mesh::handle::Vertex;
 use raymesh_mesh::io::read_mesh;
 use raymesh_mesh::{HalfEdgeMesh, IndexedMesh};
 use serde::Serialize;
+use std::collections::HashSet;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -65,7 +73,134 @@ struct Row {
     /// keeps such vertices as they are), on the build row.
     #[serde(skip_serializing_if = "Option::is_none")]
     split_vertices: Option<usize>,
+    /// The edits raymesh made, on an edit row (splits, flips or
+    /// collapses: as many as OpenMesh made where the row agrees).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    edits: Option<usize>,
 }
+
+/// An edit both libraries make over every edge of a mesh, on a copy
+/// (the number is the shim's `kind`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(i32)]
+enum Edit {
+    /// Split at the edge's midpoint: the triangles beside it become four.
+    Split = 0,
+    /// Flipped, where a flip is allowed (an interior edge whose far
+    /// vertices are not joined yet).
+    Flip = 1,
+    /// The half-edge's start merged into its end where a collapse is
+    /// allowed (the link condition and the boundary rules); then the
+    /// deleted elements collected.
+    Collapse = 2,
+}
+
+/// The edits and their rows' names, in the order they run and report.
+const EDITS: [(Edit, &str); 3] = [
+    (Edit::Split, "split every edge at its midpoint"),
+    (Edit::Flip, "flip every edge that may be"),
+    (
+        Edit::Collapse,
+        "collapse every edge that may be, then collect",
+    ),
+];
+
+/// What an edit pass left: a signature of the connectivity
+/// ([`ring_signature`], taken before any garbage collection, so by the
+/// vertices' indices then), the live vertex, edge and face counts, and
+/// how many edits were made. `#[repr(C)]`: the OpenMesh shim fills its
+/// `RmEdits`, the same fields, for its side.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct Edits {
+    ring: u64,
+    vertices: usize,
+    edges: usize,
+    faces: usize,
+    done: usize,
+}
+
+/// The mesh's edges as vertex pairs, each once, in the order and the
+/// direction the triangles first give them (so each pair is a half-edge
+/// of the mesh as built): the edits' work list, the same for both.
+fn edge_pairs(mesh: &IndexedMesh) -> Vec<[u32; 2]> {
+    let mut seen = HashSet::new();
+    let mut pairs = Vec::new();
+    for t in mesh.triangles() {
+        for i in 0..3 {
+            let (a, b) = (t[i], t[(i + 1) % 3]);
+            if seen.insert((a.min(b), a.max(b))) {
+                pairs.push([a, b]);
+            }
+        }
+    }
+    pairs
+}
+
+/// One pair of neighbours, `v` and `w`, mixed into a 64-bit word (the
+/// shim's `mix`, the same arithmetic).
+fn mix(v: u64, w: u64) -> u64 {
+    ((v << 32) | w).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+}
+
+/// The sum of [`mix`] over every live vertex and each of its neighbours:
+/// the same for two meshes whose vertices of the same indices have the
+/// same neighbours, whatever the order of their edges and faces.
+fn ring_signature(he: &HalfEdgeMesh) -> u64 {
+    let mut s = 0u64;
+    for v in (0..he.num_vertices()).map(Vertex::new) {
+        if he.is_deleted_vertex(v) {
+            continue;
+        }
+        for w in he.vertex_vertices(v) {
+            s = s.wrapping_add(mix(u64::from(v.0), u64::from(w.0)));
+        }
+    }
+    s
+}
+
+/// raymesh's side of an edit pass, on a copy of `he` (not timed): the
+/// seconds the edits took (and the garbage collection after collapses;
+/// not the signature taken before it) and what they left.
+fn edit(he: &HalfEdgeMesh, edit: Edit, pairs: &[[u32; 2]]) -> (f64, Edits) {
+    let mut m = he.clone();
+    let start = Instant::now();
+    let mut done = 0;
+    for &[a, b] in pairs {
+        let (a, b) = (Vertex::new(a as usize), Vertex::new(b as usize));
+        let Some(h) = m.find_halfedge(a, b) else {
+            continue;
+        };
+        let made = match edit {
+            Edit::Split => {
+                let p = (m.position(a) + m.position(b)) * 0.5;
+                m.split(h.edge(), p).is_some()
+            }
+            Edit::Flip => m.flip(h.edge()),
+            Edit::Collapse => m.collapse(h),
+        };
+        done += usize::from(made);
+    }
+    let mut secs = start.elapsed().as_secs_f64();
+    let ring = ring_signature(&m);
+    if edit == Edit::Collapse {
+        let start = Instant::now();
+        m.garbage_collect();
+        secs += start.elapsed().as_secs_f64();
+    }
+    let edits = Edits {
+        ring,
+        vertices: m.num_vertices(),
+        edges: m.num_edges(),
+        faces: m.num_faces(),
+        done,
+    };
+    (secs, edits)
+}
+
+/// OpenMesh's side of a row, where it ran: its time, and whether its
+/// result matched raymesh's.
+type Other = Option<(f64, bool)>;
 
 /// One run of `f`: the lesser of `best` and its time, in milliseconds,
 /// and its result.
@@ -100,6 +235,9 @@ struct OmRun {
     agree_ring: bool,
     agree_loop: bool,
     refused: usize,
+    /// Per edit of [`EDITS`]: its best time in milliseconds, and whether
+    /// what it left matched raymesh's.
+    edits: [(f64, bool); 3],
 }
 
 fn short(p: &std::path::Path) -> String {
@@ -164,8 +302,9 @@ fn main() -> Result<()> {
             (Some(false), ..) => ", RESULTS DIFFER".to_string(),
             (None, ..) => String::new(),
         };
+        let made = r.edits.map_or(String::new(), |k| format!(" ({k} edits)"));
         println!(
-            "  {:<2} thr {:<34} raymesh {:.3} {} | openmesh {om}{ratio}{agree}",
+            "  {:<2} thr {:<45} raymesh {:.3} {}{made} | openmesh {om}{ratio}{agree}",
             r.threads, r.operation, r.raymesh, r.unit
         );
     }
@@ -198,6 +337,9 @@ fn compare(args: &Args, mesh: &IndexedMesh, name: String, threads: usize) -> Res
     let [mut build_ms, mut ring_ms, mut normals_ms, mut loop_ms, mut loop_rebuild_ms] =
         [f64::INFINITY; 5];
     let (mut ring_sum, mut ring_n, mut sub) = (0, 0, None);
+    let pairs = edge_pairs(mesh);
+    let mut edit_ms = [f64::INFINITY; 3];
+    let mut edits = [Edits::default(); 3];
     #[cfg(feature = "openmesh")]
     let mut om_turns = OmTurns::new(mesh);
     for _ in 0..args.repeat {
@@ -209,19 +351,24 @@ fn compare(args: &Args, mesh: &IndexedMesh, name: String, threads: usize) -> Res
             he.loop_subdivide().map(|m| HalfEdgeMesh::from_indexed(&m))
         })
         .0;
+        for (i, &(e, _)) in EDITS.iter().enumerate() {
+            let (secs, left) = edit(&he, e, &pairs);
+            edit_ms[i] = edit_ms[i].min(secs * 1e3);
+            edits[i] = left;
+        }
         #[cfg(feature = "openmesh")]
-        om_turns.pass(mesh);
+        om_turns.pass(mesh, &pairs);
     }
     let ring_ns = ring_ms * 1e6 / ring_n.max(1) as f64;
     let sub_faces = sub.as_ref().map(|m| m.triangles().len());
     #[cfg(feature = "openmesh")]
-    let om = Some(om_turns.finish(&he, (ring_sum, ring_n), sub_faces));
+    let om = Some(om_turns.finish(&he, (ring_sum, ring_n), sub_faces, &edits));
     #[cfg(not(feature = "openmesh"))]
     let om: Option<()> = {
-        let _ = (ring_sum, sub_faces);
+        let _ = (ring_sum, sub_faces, edits);
         None
     };
-    let row = |operation, unit, raymesh: f64, other: Option<(f64, bool)>| Row {
+    let row = |operation, unit, raymesh: f64, other: Other| Row {
         mesh: name.clone(),
         threads,
         operation,
@@ -232,21 +379,23 @@ fn compare(args: &Args, mesh: &IndexedMesh, name: String, threads: usize) -> Res
         agree: other.map(|o| o.1),
         refused: None,
         split_vertices: None,
+        edits: None,
     };
     #[cfg(feature = "openmesh")]
-    let (b, r, nm, l) = match &om {
+    let (b, r, nm, l, ed) = match &om {
         Some(o) => (
             Some((o.build_ms, o.agree_build)),
             Some((o.ring_ns, o.agree_ring)),
             Some((o.normals_ms, true)),
             Some((o.loop_ms, o.agree_loop)),
+            o.edits.map(Some),
         ),
-        None => (None, None, None, None),
+        None => (None, None, None, None, [None; 3]),
     };
     #[cfg(not(feature = "openmesh"))]
-    let (b, r, nm, l): (Option<(f64, bool)>, _, _, _) = {
+    let (b, r, nm, l, ed): (Other, Other, Other, Other, [Other; 3]) = {
         let _ = om;
-        (None, None, None, None)
+        (None, None, None, None, [None; 3])
     };
     // Where the two meshes differ (OpenMesh refused triangles, or raymesh
     // split vertices), so do the one-rings; the rows say why.
@@ -284,6 +433,14 @@ fn compare(args: &Args, mesh: &IndexedMesh, name: String, threads: usize) -> Res
             l,
         ));
     }
+    for (i, &(_, name)) in EDITS.iter().enumerate() {
+        rows.push(Row {
+            refused: refused(&om),
+            split_vertices: split,
+            edits: Some(edits[i].done),
+            ..row(name, "ms", edit_ms[i], ed[i])
+        });
+    }
     Ok(rows)
 }
 
@@ -306,6 +463,9 @@ struct OmTurns {
     times: [f64; 4],
     ring: (u64, u64),
     loop_faces: usize,
+    /// Per edit of [`EDITS`]: the best time in milliseconds and what the
+    /// last pass left.
+    edits: [(f64, Edits); 3],
 }
 
 #[cfg(feature = "openmesh")]
@@ -316,11 +476,12 @@ impl OmTurns {
             times: [f64::INFINITY; 4],
             ring: (0, 0),
             loop_faces: 0,
+            edits: [(f64::INFINITY, Edits::default()); 3],
         }
     }
 
     /// One run of each operation.
-    fn pass(&mut self, mesh: &IndexedMesh) {
+    fn pass(&mut self, mesh: &IndexedMesh, pairs: &[[u32; 2]]) {
         let [build, ring, normals, step] = &mut self.times;
         (*build, self.om) = best_of(*build, || openmesh_peer::OmMesh::build(mesh));
         (*ring, self.ring) = best_of(*ring, || self.om.one_ring());
@@ -328,12 +489,22 @@ impl OmTurns {
         let (s, faces) = self.om.loop_step();
         *step = step.min(s * 1e3);
         self.loop_faces = faces;
+        for (i, &(e, _)) in EDITS.iter().enumerate() {
+            let (secs, left) = self.om.edit(e, pairs);
+            self.edits[i] = (self.edits[i].0.min(secs * 1e3), left);
+        }
     }
 
     /// Its times, and whether each result matches raymesh's (`ring`:
     /// raymesh's one-ring sum and count; `faces`: its triangles after a
-    /// Loop step).
-    fn finish(self, he: &HalfEdgeMesh, ring: (u64, u64), faces: Option<usize>) -> OmRun {
+    /// Loop step; `edits`: what its edit passes left).
+    fn finish(
+        self,
+        he: &HalfEdgeMesh,
+        ring: (u64, u64),
+        faces: Option<usize>,
+        edits: &[Edits; 3],
+    ) -> OmRun {
         let (v, e, f) = self.om.counts();
         let [build_ms, ring_ms, normals_ms, loop_ms] = self.times;
         OmRun {
@@ -346,6 +517,7 @@ impl OmTurns {
             agree_ring: self.ring == ring,
             agree_loop: faces == Some(self.loop_faces),
             refused: self.om.refused,
+            edits: std::array::from_fn(|i| (self.edits[i].0, self.edits[i].1 == edits[i])),
         }
     }
 }

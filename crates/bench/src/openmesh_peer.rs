@@ -7,6 +7,7 @@
 //! only; the library crates never depend on it.
 #![allow(unsafe_code)]
 
+use crate::{Edit, Edits};
 use raymesh_mesh::IndexedMesh;
 use std::ffi::c_void;
 
@@ -25,6 +26,13 @@ extern "C" {
     fn raymesh_om_one_ring(m: *const c_void, count: *mut u64) -> u64;
     fn raymesh_om_normals(m: *mut c_void) -> f64;
     fn raymesh_om_loop(m: *const c_void, faces: *mut usize) -> u64;
+    fn raymesh_om_edit(
+        m: *const c_void,
+        kind: i32,
+        pairs: *const u32,
+        n: usize,
+        out: *mut Edits,
+    ) -> u64;
 }
 
 /// An OpenMesh triangle mesh (`TriMesh_ArrayKernelT<>`), owned.
@@ -92,6 +100,27 @@ impl OmMesh {
         // SAFETY: `ptr` is a live mesh, which the call only copies.
         let ns = unsafe { raymesh_om_loop(self.ptr, &mut faces) };
         (ns as f64 * 1e-9, faces)
+    }
+
+    /// `edit` on a copy, over each edge `pairs` names by its vertices
+    /// (`find_halfedge`; pairs no edge joins any more are passed over):
+    /// the seconds the edits took (the copy not counted) and what they
+    /// left. Panics if a pair names a vertex the mesh does not have.
+    pub fn edit(&self, edit: Edit, pairs: &[[u32; 2]]) -> (f64, Edits) {
+        let nv = self.counts().0;
+        assert!(
+            pairs.iter().flatten().all(|&v| (v as usize) < nv),
+            "an edge pair names a vertex OpenMesh's mesh does not have"
+        );
+        let flat = pairs.as_flattened();
+        let mut out = Edits::default();
+        // SAFETY: `ptr` is a live mesh, which the call only copies;
+        // `flat` holds 2 indices a pair, each a vertex of the mesh
+        // (checked above), and outlives the call; `out` is a valid
+        // `RmEdits` (`#[repr(C)]`, the same fields) to write.
+        let ns =
+            unsafe { raymesh_om_edit(self.ptr, edit as i32, flat.as_ptr(), pairs.len(), &mut out) };
+        (ns as f64 * 1e-9, out)
     }
 }
 

@@ -36,9 +36,9 @@ fn every_operation_is_reported_and_openmesh_agrees_where_built() {
         .lines()
         .map(|l| serde_json::from_str(l).expect("a JSON line"))
         .collect();
-    // Five operations, two meshes (the cube's quads fan-triangulated, so
+    // Eight operations, two meshes (the cube's quads fan-triangulated, so
     // it has a Loop step too), two thread counts.
-    assert_eq!(rows.len(), 20);
+    assert_eq!(rows.len(), 32);
     for r in &rows {
         let t = r["raymesh"].as_f64().unwrap();
         assert!(t.is_finite() && t >= 0.0, "{r}");
@@ -52,7 +52,7 @@ fn every_operation_is_reported_and_openmesh_agrees_where_built() {
             assert!(r["openmesh"].is_null(), "{r}");
         }
     }
-    let ops: Vec<&str> = rows[..5]
+    let ops: Vec<&str> = rows[..8]
         .iter()
         .map(|r| r["operation"].as_str().unwrap())
         .collect();
@@ -63,9 +63,36 @@ fn every_operation_is_reported_and_openmesh_agrees_where_built() {
             "one-ring walk, per neighbour",
             "vertex normals",
             "one Loop step, to an indexed mesh",
-            "one Loop step, connectivity rebuilt"
+            "one Loop step, connectivity rebuilt",
+            "split every edge at its midpoint",
+            "flip every edge that may be",
+            "collapse every edge that may be, then collect",
         ]
     );
+    // The edits made: every edge split (the elephant's 7,371 edges, the
+    // cube's 18), some flipped and some collapsed; the same on each
+    // thread count (the edits run on one).
+    let made = |mesh: usize, threads: usize, op: usize| {
+        rows[(2 * mesh + threads) * 8 + op]["edits"]
+            .as_u64()
+            .unwrap()
+    };
+    for threads in 0..2 {
+        assert_eq!(made(0, threads, 5), 7371);
+        assert_eq!(made(1, threads, 5), 18);
+        for mesh in 0..2 {
+            for op in 5..8 {
+                assert!(made(mesh, threads, op) > 0, "mesh {mesh}, edit {op}");
+                assert_eq!(made(mesh, threads, op), made(mesh, 0, op));
+            }
+        }
+    }
+    for r in rows.iter().filter(|r| r["edits"].is_u64()) {
+        assert!(
+            r["operation"].as_str().unwrap().contains("every edge"),
+            "{r}"
+        );
+    }
 }
 
 #[test]
