@@ -1,6 +1,6 @@
-//! Editing triangle meshes: edge flip, edge split, half-edge collapse (with
-//! the link condition of Dey et al. 1999 / Hoppe et al. 1993), and garbage
-//! collection of what collapses delete.
+//! Editing triangle meshes: edge flip, edge split, face split, half-edge
+//! collapse (with the link condition of Dey et al. 1999 / Hoppe et al.
+//! 1993), and garbage collection of what collapses delete.
 
 use super::{HalfEdgeMesh, Link};
 use crate::handle::{Edge, Face, HalfEdge, Vertex};
@@ -227,6 +227,41 @@ impl HalfEdgeMesh {
         }
         if let Some(gb) = self.garbage.as_mut() {
             // Keep the marks' lengths in step with the arrays.
+            gb.vertices.resize(self.positions.len(), false);
+        }
+        Some(v)
+    }
+
+    /// Splits triangle `f` in three at a new vertex at `p`, joined to its
+    /// three corners (OpenMesh's `split(FaceHandle, Point)`, the 1-to-3
+    /// split of √3 subdivision and of inserting a point into a
+    /// triangulation). `f` keeps the part beside its first half-edge; the
+    /// other two are new faces. `None` (and no change) if `f` is deleted
+    /// or not a triangle. Panics if `f` is not a face of the mesh.
+    pub fn split_face(&mut self, f: Face, p: Vec3) -> Option<Vertex> {
+        if self.is_deleted_face(f) || !self.is_triangle(f) {
+            return None;
+        }
+        let h0 = self.face_halfedge(f);
+        let h1 = self.next_halfedge(h0);
+        let h2 = self.next_halfedge(h1);
+        let (a, b, c) = (self.to_vertex(h2), self.to_vertex(h0), self.to_vertex(h1));
+        let v = Vertex::new(self.positions.len());
+        self.positions.push(p);
+        // Each `new_edge(v, x)` is v→x, and its twin x→v.
+        let (ea, eb, ec) = (
+            self.new_edge(v, a),
+            self.new_edge(v, b),
+            self.new_edge(v, c),
+        );
+        let (f1, f2) = (self.new_face(h1), self.new_face(h2));
+        self.set_triangle([h0, eb.twin(), ea], f);
+        self.set_triangle([h1, ec.twin(), eb], f1);
+        self.set_triangle([h2, ea.twin(), ec], f2);
+        // Inside the triangle: none of its half-edges is a boundary, and the
+        // corners keep the outgoing half-edges they had.
+        self.v_half.push(ea);
+        if let Some(gb) = self.garbage.as_mut() {
             gb.vertices.resize(self.positions.len(), false);
         }
         Some(v)

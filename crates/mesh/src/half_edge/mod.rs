@@ -88,6 +88,21 @@ impl HalfEdgeMesh {
         &self.positions
     }
 
+    /// Moves vertex `v` to `p` (smoothing, deformation, placing the vertex
+    /// an edit made): the connectivity stays as it is. Panics if `v` is
+    /// not a vertex of the mesh.
+    #[inline]
+    pub fn set_position(&mut self, v: Vertex, p: Vec3) {
+        self.positions[v.idx()] = p;
+    }
+
+    /// All positions, to move many vertices at once (a slice: the vertex
+    /// count is the connectivity's, and stays).
+    #[must_use]
+    pub fn positions_mut(&mut self) -> &mut [Vec3] {
+        &mut self.positions
+    }
+
     /// The vertex a half-edge points to.
     #[inline(always)]
     #[must_use]

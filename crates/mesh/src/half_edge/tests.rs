@@ -394,6 +394,7 @@ fn winged_edge_and_compact_agree_with_half_edge() {
 enum Op {
     Flip(usize),
     Split(usize, f32),
+    SplitFace(usize),
     Collapse(usize),
     Collect,
     DeleteFace(usize),
@@ -403,6 +404,7 @@ fn op() -> impl Strategy<Value = Op> {
     prop_oneof![
         3 => any::<usize>().prop_map(Op::Flip),
         2 => (any::<usize>(), 0.1f32..0.9).prop_map(|(e, t)| Op::Split(e, t)),
+        1 => any::<usize>().prop_map(Op::SplitFace),
         3 => any::<usize>().prop_map(Op::Collapse),
         1 => Just(Op::Collect),
     ]
@@ -425,6 +427,18 @@ fn apply(m: &mut HalfEdgeMesh, op: &Op) -> bool {
                 m.position(m.to_vertex(e.halfedge(1))),
             );
             m.split(e, a.lerp(b, t)).is_some()
+        }
+        Op::SplitFace(f) => {
+            if m.num_faces() == 0 {
+                return false;
+            }
+            let f = Face::new(f % m.num_faces());
+            if m.is_deleted_face(f) {
+                return false;
+            }
+            let corners: Vec<Vec3> = m.face_vertices(f).map(|v| m.position(v)).collect();
+            let centre = corners.iter().copied().sum::<Vec3>() / corners.len() as f32;
+            m.split_face(f, centre).is_some()
         }
         Op::Collapse(h) => m.collapse(HalfEdge::new(h % m.num_halfedges())),
         Op::Collect => {
@@ -614,4 +628,68 @@ fn find_halfedge_finds_each_half_edge_by_its_vertices() {
             assert_eq!(h.find_halfedge(gone, w), None, "{name}: deleted {gone:?}");
         }
     }
+}
+
+/// A face split by hand: one triangle becomes three around the new
+/// vertex, which sees the three corners; a quad is refused unchanged.
+#[test]
+fn split_face_makes_three_triangles_around_the_new_vertex() {
+    let p = vec![Vec3::ZERO, Vec3::X, Vec3::new(1.0, 1.0, 0.0), Vec3::Y];
+    let (mut m, _) = build(&IndexedMesh::from_triangles(p, &[[0, 1, 2], [0, 2, 3]]).unwrap());
+    let chi = m.euler_characteristic();
+    let v = m.split_face(Face(0), Vec3::new(0.7, 0.3, 0.0)).unwrap();
+    m.validate().unwrap();
+    assert_eq!(v, Vertex(4));
+    assert_eq!((m.num_vertices(), m.num_edges(), m.num_faces()), (5, 8, 4));
+    assert_eq!(m.euler_characteristic(), chi);
+    let mut ring: Vec<u32> = m.vertex_vertices(v).map(|w| w.0).collect();
+    ring.sort_unstable();
+    assert_eq!(ring, [0, 1, 2]);
+    assert!(!m.is_boundary_vertex(v));
+    // Every face a triangle of the new vertex but the untouched one, each
+    // wound as the split face was (counter-clockwise seen from +z).
+    for f in m.faces() {
+        let c: Vec<Vec3> = m.face_vertices(f).map(|w| m.position(w)).collect();
+        assert_eq!(c.len(), 3);
+        assert!((c[1] - c[0]).cross(c[2] - c[0]).z > 0.0, "face {f:?}");
+    }
+    let out = m.to_indexed();
+    assert_eq!(out.num_faces(), 4);
+    // A deleted face and a quad are refused, the mesh unchanged.
+    m.delete_face(Face(1));
+    let before = m.clone();
+    assert_eq!(m.split_face(Face(1), Vec3::ZERO), None);
+    assert_eq!(m, before);
+    let (mut q, _) = build(&data("cube_quad.off"));
+    let before = q.clone();
+    assert_eq!(q.split_face(Face(0), Vec3::ZERO), None);
+    assert_eq!(q, before);
+}
+
+/// Moving vertices changes positions and normals, never the connectivity.
+#[test]
+fn moved_vertices_keep_their_connectivity() {
+    let (mut m, _) = build(&data("sphere.ply"));
+    let before = m.clone();
+    let v = Vertex(3);
+    m.set_position(v, Vec3::new(5.0, 6.0, 7.0));
+    assert_eq!(m.position(v), Vec3::new(5.0, 6.0, 7.0));
+    for p in m.positions_mut() {
+        *p *= 2.0;
+    }
+    assert_eq!(m.position(v), Vec3::new(10.0, 12.0, 14.0));
+    assert_eq!(m.position(Vertex(0)), before.position(Vertex(0)) * 2.0);
+    m.validate().unwrap();
+    assert_eq!(
+        m.to_indexed().faces().count(),
+        before.to_indexed().faces().count()
+    );
+    for w in (0..m.num_vertices()).map(Vertex::new) {
+        assert!(m.vertex_vertices(w).eq(before.vertex_vertices(w)));
+    }
+    // The moved vertex's neighbours' normals turn towards it.
+    let (n0, n1) = (before.vertex_normals(), m.vertex_normals());
+    assert!(m
+        .vertex_vertices(v)
+        .any(|w| (n0[w.idx()] - n1[w.idx()]).length() > 1e-3));
 }
