@@ -117,8 +117,11 @@ static uint64_t since(std::chrono::steady_clock::time_point start) {
 // timed): `kind` 0 splits each at its midpoint (`split`: the two
 // triangles beside it become four), 1 flips each that `is_flip_ok`
 // allows, 2 collapses each half-edge that `is_collapse_ok` allows and
-// then collects the garbage. Returns the nanoseconds the edits took
-// (with the garbage collection, without the signature taken before it).
+// then collects the garbage; 3 ignores the pairs and splits every face of
+// the mesh as built, by index, at its centroid (`split(FaceHandle,
+// Point)`: one triangle becomes three). Returns the nanoseconds the edits
+// took (with the garbage collection, without the signature taken before
+// it).
 uint64_t raymesh_om_edit(const void* mp, int kind, const uint32_t* pairs, size_t n, RmEdits* out) {
     Mesh m = *static_cast<const Mesh*>(mp);
     if (kind == 2) {
@@ -129,6 +132,17 @@ uint64_t raymesh_om_edit(const void* mp, int kind, const uint32_t* pairs, size_t
     }
     size_t done = 0;
     auto start = std::chrono::steady_clock::now();
+    if (kind == 3) {
+        size_t nf = m.n_faces();
+        for (size_t f = 0; f < nf; ++f) {
+            Mesh::FaceHandle fh = m.face_handle(static_cast<int>(f));
+            Mesh::Point c(0.0f, 0.0f, 0.0f);
+            for (auto v : m.fv_range(fh)) c += m.point(v);
+            m.split(fh, c / 3.0f);
+            ++done;
+        }
+        n = 0;
+    }
     for (size_t i = 0; i < n; ++i) {
         Mesh::HalfedgeHandle h = m.find_halfedge(
             m.vertex_handle(pairs[2 * i]), m.vertex_handle(pairs[2 * i + 1]));

@@ -7,7 +7,8 @@
 //! where a flip is allowed, collapsed where a collapse is allowed (then
 //! the garbage collected), each over every edge of the mesh in one order
 //! (the triangles', each edge named by its two vertices and looked up by
-//! `find_halfedge`), on a copy. The two take turns: a pass of every
+//! `find_halfedge`), and every face split in three at its centroid, on a
+//! copy. The two take turns: a pass of every
 //! operation for raymesh, then one for OpenMesh, `--repeat` times; each
 //! reports its best. OpenMesh runs on one thread; raymesh in a pool of
 //! each given size (the edits are sequential in both). Each operation's
@@ -22,7 +23,8 @@ use raymesh_bench::thread_list;
 
 use anyhow::{bail, Context, Result};
 use clap::Parser;
-use raymesh_mesh::handle::Vertex;
+use raymesh_geometry::Vec3;
+use raymesh_mesh::handle::{Face, Vertex};
 use raymesh_mesh::io::read_mesh;
 use raymesh_mesh::{HalfEdgeMesh, IndexedMesh};
 use serde::Serialize;
@@ -93,16 +95,20 @@ enum Edit {
     /// allowed (the link condition and the boundary rules); then the
     /// deleted elements collected.
     Collapse = 2,
+    /// Every face of the mesh as built (by index, not the edges' list)
+    /// split in three at its centroid.
+    SplitFace = 3,
 }
 
 /// The edits and their rows' names, in the order they run and report.
-const EDITS: [(Edit, &str); 3] = [
+const EDITS: [(Edit, &str); 4] = [
     (Edit::Split, "split every edge at its midpoint"),
     (Edit::Flip, "flip every edge that may be"),
     (
         Edit::Collapse,
         "collapse every edge that may be, then collect",
     ),
+    (Edit::SplitFace, "split every face at its centroid"),
 ];
 
 /// What an edit pass left: a signature of the connectivity
@@ -166,6 +172,16 @@ fn edit(he: &HalfEdgeMesh, edit: Edit, pairs: &[[u32; 2]]) -> (f64, Edits) {
     let mut m = he.clone();
     let start = Instant::now();
     let mut done = 0;
+    if edit == Edit::SplitFace {
+        for f in (0..he.num_faces()).map(Face::new) {
+            let mut c = Vec3::ZERO;
+            for v in m.face_vertices(f) {
+                c += m.position(v);
+            }
+            done += usize::from(m.split_face(f, c / 3.0).is_some());
+        }
+    }
+    let pairs = if edit == Edit::SplitFace { &[] } else { pairs };
     for &[a, b] in pairs {
         let (a, b) = (Vertex::new(a as usize), Vertex::new(b as usize));
         let Some(h) = m.find_halfedge(a, b) else {
@@ -178,6 +194,7 @@ fn edit(he: &HalfEdgeMesh, edit: Edit, pairs: &[[u32; 2]]) -> (f64, Edits) {
             }
             Edit::Flip => m.flip(h.edge()),
             Edit::Collapse => m.collapse(h),
+            Edit::SplitFace => unreachable!("faces are split above"),
         };
         done += usize::from(made);
     }
@@ -237,7 +254,7 @@ struct OmRun {
     refused: usize,
     /// Per edit of [`EDITS`]: its best time in milliseconds, and whether
     /// what it left matched raymesh's.
-    edits: [(f64, bool); 3],
+    edits: [(f64, bool); EDITS.len()],
 }
 
 fn short(p: &std::path::Path) -> String {
@@ -338,8 +355,8 @@ fn compare(args: &Args, mesh: &IndexedMesh, name: String, threads: usize) -> Res
         [f64::INFINITY; 5];
     let (mut ring_sum, mut ring_n, mut sub) = (0, 0, None);
     let pairs = edge_pairs(mesh);
-    let mut edit_ms = [f64::INFINITY; 3];
-    let mut edits = [Edits::default(); 3];
+    let mut edit_ms = [f64::INFINITY; EDITS.len()];
+    let mut edits = [Edits::default(); EDITS.len()];
     #[cfg(feature = "openmesh")]
     let mut om_turns = OmTurns::new(mesh);
     for _ in 0..args.repeat {
@@ -390,12 +407,12 @@ fn compare(args: &Args, mesh: &IndexedMesh, name: String, threads: usize) -> Res
             Some((o.loop_ms, o.agree_loop)),
             o.edits.map(Some),
         ),
-        None => (None, None, None, None, [None; 3]),
+        None => (None, None, None, None, [None; EDITS.len()]),
     };
     #[cfg(not(feature = "openmesh"))]
-    let (b, r, nm, l, ed): (Other, Other, Other, Other, [Other; 3]) = {
+    let (b, r, nm, l, ed): (Other, Other, Other, Other, [Other; EDITS.len()]) = {
         let _ = om;
-        (None, None, None, None, [None; 3])
+        (None, None, None, None, [None; EDITS.len()])
     };
     // Where the two meshes differ (OpenMesh refused triangles, or raymesh
     // split vertices), so do the one-rings; the rows say why.
@@ -465,7 +482,7 @@ struct OmTurns {
     loop_faces: usize,
     /// Per edit of [`EDITS`]: the best time in milliseconds and what the
     /// last pass left.
-    edits: [(f64, Edits); 3],
+    edits: [(f64, Edits); EDITS.len()],
 }
 
 #[cfg(feature = "openmesh")]
@@ -476,7 +493,7 @@ impl OmTurns {
             times: [f64::INFINITY; 4],
             ring: (0, 0),
             loop_faces: 0,
-            edits: [(f64::INFINITY, Edits::default()); 3],
+            edits: [(f64::INFINITY, Edits::default()); EDITS.len()],
         }
     }
 
@@ -503,7 +520,7 @@ impl OmTurns {
         he: &HalfEdgeMesh,
         ring: (u64, u64),
         faces: Option<usize>,
-        edits: &[Edits; 3],
+        edits: &[Edits; EDITS.len()],
     ) -> OmRun {
         let (v, e, f) = self.om.counts();
         let [build_ms, ring_ms, normals_ms, loop_ms] = self.times;

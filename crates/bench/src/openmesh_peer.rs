@@ -103,7 +103,8 @@ impl OmMesh {
     }
 
     /// `edit` on a copy, over each edge `pairs` names by its vertices
-    /// (`find_halfedge`; pairs no edge joins any more are passed over):
+    /// (`find_halfedge`; pairs no edge joins any more are passed over),
+    /// or for `Edit::SplitFace` over every face by index:
     /// the seconds the edits took (the copy not counted) and what they
     /// left. Panics if a pair names a vertex the mesh does not have.
     pub fn edit(&self, edit: Edit, pairs: &[[u32; 2]]) -> (f64, Edits) {
