@@ -351,7 +351,7 @@ fn compare(args: &Args, mesh: &IndexedMesh, name: String, threads: usize) -> Res
     // One pass of each operation for raymesh, then one for OpenMesh, R
     // times: the best of each.
     let mut he = HalfEdgeMesh::from_indexed(mesh);
-    let [mut build_ms, mut ring_ms, mut normals_ms, mut loop_ms, mut loop_rebuild_ms] =
+    let [mut build_ms, mut ring_ms, mut normals_ms, mut loop_ms, mut loop_he_ms] =
         [f64::INFINITY; 5];
     let (mut ring_sum, mut ring_n, mut sub) = (0, 0, None);
     let pairs = edge_pairs(mesh);
@@ -364,10 +364,7 @@ fn compare(args: &Args, mesh: &IndexedMesh, name: String, threads: usize) -> Res
         (ring_ms, (ring_sum, ring_n)) = best_of(ring_ms, || one_ring(&he));
         normals_ms = best_of(normals_ms, || he.vertex_normals()).0;
         (loop_ms, sub) = best_of(loop_ms, || he.loop_subdivide());
-        loop_rebuild_ms = best_of(loop_rebuild_ms, || {
-            he.loop_subdivide().map(|m| HalfEdgeMesh::from_indexed(&m))
-        })
-        .0;
+        loop_he_ms = best_of(loop_he_ms, || he.loop_subdivided()).0;
         for (i, &(e, _)) in EDITS.iter().enumerate() {
             let (secs, left) = edit(&he, e, &pairs);
             edit_ms[i] = edit_ms[i].min(secs * 1e3);
@@ -444,9 +441,9 @@ fn compare(args: &Args, mesh: &IndexedMesh, name: String, threads: usize) -> Res
             None,
         ));
         rows.push(row(
-            "one Loop step, connectivity rebuilt",
+            "one Loop step, with its connectivity",
             "ms",
-            loop_rebuild_ms,
+            loop_he_ms,
             l,
         ));
     }

@@ -63,7 +63,7 @@ fn every_operation_is_reported_and_openmesh_agrees_where_built() {
             "one-ring walk, per neighbour",
             "vertex normals",
             "one Loop step, to an indexed mesh",
-            "one Loop step, connectivity rebuilt",
+            "one Loop step, with its connectivity",
             "split every edge at its midpoint",
             "flip every edge that may be",
             "collapse every edge that may be, then collect",
