@@ -1,5 +1,5 @@
 //! Subdivision: Loop for triangle meshes, Catmull–Clark for polygon meshes.
-//! Each level returns a new indexed mesh (Loop's also a half-edge mesh,
+//! Each level returns a new indexed mesh (or a half-edge mesh,
 //! written straight from the old one's connectivity): old vertices first
 //! (moved), then one vertex per edge (and, for Catmull–Clark, one per
 //! face).
@@ -209,12 +209,132 @@ impl HalfEdgeMesh {
     /// every face becomes quads; boundaries follow the cubic B-spline rules.
     #[must_use]
     pub fn catmull_clark(&self) -> IndexedMesh {
-        let (nv, ne, nf) = (self.num_vertices(), self.num_edges(), self.num_faces());
-        let mut out = IndexedMesh::with_capacity(
-            nv + ne + nf,
+        let (nv, ne) = (self.num_vertices(), self.num_edges());
+        let mut out = IndexedMesh::with_capacity(0, self.num_halfedges(), 4 * self.num_halfedges());
+        out.positions = self.catmull_clark_positions();
+        for f in self.faces() {
+            let c = (nv + ne + f.idx()) as u32;
+            for h in self.face_halfedges(f) {
+                // The quad at h's start vertex: vertex, edge(h), face, edge(prev(h)).
+                let p = self.prev_halfedge(h);
+                out.push_face_unchecked(&[
+                    self.from_vertex(h).0,
+                    (nv + h.edge().idx()) as u32,
+                    c,
+                    (nv + p.edge().idx()) as u32,
+                ]);
+            }
+        }
+        out
+    }
+
+    /// [`Self::catmull_clark`] as a half-edge mesh, its connectivity
+    /// written straight from this one's, as [`Self::loop_subdivided`]
+    /// writes Loop's: each edge's two halves, an edge from each side's
+    /// midpoint to the face's new vertex, a quad at each corner. The same
+    /// mesh as `HalfEdgeMesh::from_indexed(&self.catmull_clark())` (the
+    /// same positions, vertices and faces in the same order; its edges
+    /// numbered otherwise). A mesh with deleted elements is subdivided as
+    /// if they were collected.
+    #[must_use]
+    pub fn catmull_clark_subdivided(&self) -> HalfEdgeMesh {
+        if self.garbage.is_some() {
+            let mut m = self.clone();
+            m.garbage_collect();
+            return m.catmull_clark_subdivided();
+        }
+        let (nv, ne, nf, nh) = (
+            self.num_vertices(),
+            self.num_edges(),
+            self.num_faces(),
             self.num_halfedges(),
-            4 * self.num_halfedges(),
         );
+        // The halves of old half-edges as in `loop_subdivided`.
+        let first = |h: HalfEdge| HalfEdge::new(4 * h.edge().idx() + 3 * (h.idx() & 1));
+        let second = |h: HalfEdge| HalfEdge::new(4 * h.edge().idx() + 2 - (h.idx() & 1));
+        let mid = |h: HalfEdge| Vertex::new(nv + h.edge().idx());
+        // Corner k of the new mesh: the k-th face half-edge, face by face,
+        // each face's from its first half-edge on; its quad is face k and
+        // its inner edge 2 ne + k, whose even half runs from the side's
+        // midpoint to the face's new vertex.
+        let mut corner = vec![u32::MAX; nh];
+        let mut first_corner = Vec::with_capacity(nf + 1);
+        let mut k = 0u32;
+        for f in self.faces() {
+            first_corner.push(k);
+            for h in self.face_halfedges(f) {
+                corner[h.idx()] = k;
+                k += 1;
+            }
+        }
+        let nc = k as usize;
+        let inner = |h: HalfEdge| HalfEdge::new(2 * (2 * ne + corner[h.idx()] as usize));
+        let none = Link {
+            to: Vertex::INVALID,
+            next: HalfEdge::INVALID,
+        };
+        let mut m = HalfEdgeMesh {
+            positions: self.catmull_clark_positions(),
+            v_half: Vec::with_capacity(nv + ne + nf),
+            h_link: vec![none; 4 * ne + 2 * nc],
+            h_face: vec![Face::INVALID; 4 * ne + 2 * nc],
+            f_half: vec![HalfEdge::INVALID; nc],
+            garbage: None,
+        };
+        for h in (0..nh).map(HalfEdge::new) {
+            let (f1, s1) = (first(h), second(h));
+            m.h_link[f1.idx()].to = mid(h);
+            m.h_link[s1.idx()].to = self.to_vertex(h);
+            if self.is_boundary_halfedge(h) {
+                m.h_link[f1.idx()].next = s1;
+                m.h_link[s1.idx()].next = first(self.next_halfedge(h));
+            }
+        }
+        for f in self.faces() {
+            let c = Vertex::new(nv + ne + f.idx());
+            for h in self.face_halfedges(f) {
+                let i = inner(h);
+                m.h_link[i.idx()].to = c;
+                m.h_link[i.twin().idx()].to = mid(h);
+                let p = self.prev_halfedge(h);
+                let quad = [first(h), i, inner(p).twin(), second(p)];
+                let face = Face::new(corner[h.idx()] as usize);
+                for j in 0..4 {
+                    m.h_link[quad[j].idx()].next = quad[(j + 1) % 4];
+                    m.h_face[quad[j].idx()] = face;
+                }
+                m.f_half[face.idx()] = quad[0];
+            }
+        }
+        for v in self.vertices() {
+            let h = self.vertex_halfedge(v);
+            m.v_half.push(if h.is_valid() {
+                first(h)
+            } else {
+                HalfEdge::INVALID
+            });
+        }
+        for e in self.edges() {
+            let h = e.halfedge(0);
+            let b = if self.is_boundary_halfedge(h.twin()) {
+                h.twin()
+            } else {
+                h
+            };
+            m.v_half.push(second(b));
+        }
+        for &k in &first_corner {
+            m.v_half
+                .push(HalfEdge::new(2 * (2 * ne + k as usize)).twin());
+        }
+        m
+    }
+
+    /// The positions of one Catmull–Clark step: the old vertices moved,
+    /// then a vertex on each edge, then one in each face.
+    fn catmull_clark_positions(&self) -> Vec<Vec3> {
+        let (nv, ne, nf) = (self.num_vertices(), self.num_edges(), self.num_faces());
+        let mut out = Vec::with_capacity(nv + ne + nf);
         let face_pts: Vec<Vec3> = self
             .faces()
             .map(|f| {
@@ -243,7 +363,7 @@ impl HalfEdgeMesh {
                 }
                 (f_sum / n + 2.0 * r_sum / n + (n - 3.0) * p) / n
             };
-            out.positions.push(q);
+            out.push(q);
         }
         for e in self.edges() {
             let (h, t) = (e.halfedge(0), e.halfedge(1));
@@ -256,22 +376,9 @@ impl HalfEdgeMesh {
             } else {
                 0.25 * (a + b + fp(self.face(h)) + fp(self.face(t)))
             };
-            out.positions.push(q);
+            out.push(q);
         }
-        out.positions.extend_from_slice(&face_pts);
-        for f in self.faces() {
-            let c = (nv + ne + f.idx()) as u32;
-            for h in self.face_halfedges(f) {
-                // The quad at h's start vertex: vertex, edge(h), face, edge(prev(h)).
-                let p = self.prev_halfedge(h);
-                out.push_face_unchecked(&[
-                    self.from_vertex(h).0,
-                    (nv + h.edge().idx()) as u32,
-                    c,
-                    (nv + p.edge().idx()) as u32,
-                ]);
-            }
-        }
+        out.extend_from_slice(&face_pts);
         out
     }
 }

@@ -844,3 +844,79 @@ fn loop_subdivided_is_the_rebuilt_loop_step() {
     let (c, _) = build(&data("cube_quad.off"));
     assert!(c.loop_subdivided().is_none());
 }
+
+/// The Catmull–Clark step written straight into a half-edge mesh is the
+/// mesh that building from the indexed step gives, as for Loop: on
+/// quads, triangles, a mixed open mesh, over two levels, and with
+/// deleted faces.
+#[test]
+fn catmull_clark_subdivided_is_the_rebuilt_step() {
+    let same = |h: &HalfEdgeMesh, what: &str| {
+        let direct = h.catmull_clark_subdivided();
+        direct.validate().unwrap();
+        let mut g = h.clone();
+        g.garbage_collect();
+        let indexed = g.catmull_clark();
+        let (rebuilt, report) = build(&indexed);
+        assert!(report.is_clean(), "{what}");
+        assert_eq!(direct.to_indexed(), indexed, "{what}");
+        assert_eq!(
+            (direct.num_edges(), direct.num_halfedges()),
+            (rebuilt.num_edges(), rebuilt.num_halfedges()),
+            "{what}"
+        );
+        for v in direct.vertices() {
+            let mut a: Vec<u32> = direct.vertex_vertices(v).map(|w| w.0).collect();
+            let mut b: Vec<u32> = rebuilt.vertex_vertices(v).map(|w| w.0).collect();
+            a.sort_unstable();
+            b.sort_unstable();
+            assert_eq!(a, b, "{what}: vertex {v:?}");
+            assert_eq!(
+                direct.is_boundary_vertex(v),
+                rebuilt.is_boundary_vertex(v),
+                "{what}"
+            );
+        }
+        assert_eq!(
+            direct.boundary_loops().len(),
+            rebuilt.boundary_loops().len(),
+            "{what}"
+        );
+        direct
+    };
+    let mut mixed = IndexedMesh::new();
+    mixed.positions = vec![
+        Vec3::ZERO,
+        Vec3::X,
+        Vec3::new(1.0, 1.0, 0.2),
+        Vec3::Y,
+        Vec3::new(0.5, -1.0, 0.3),
+        Vec3::new(2.0, 0.0, 0.0),
+        Vec3::new(3.0, 0.0, 0.1),
+        Vec3::new(3.0, 1.0, 0.0),
+        Vec3::new(2.5, 1.5, 0.0),
+        Vec3::new(2.0, 1.0, 0.0),
+        Vec3::splat(7.0),
+    ];
+    for f in [&[0u32, 1, 2, 3][..], &[0, 4, 1], &[5, 6, 7, 8, 9]] {
+        mixed.push_face_unchecked(f);
+    }
+    for (name, mesh) in [
+        ("cube_quad.off", data("cube_quad.off")),
+        ("mesh_with_border.off", data("mesh_with_border.off")),
+        ("tetrahedron.off", data("tetrahedron.off")),
+        ("a quad, a triangle, a pentagon and a lone vertex", mixed),
+    ] {
+        let (mut h, _) = build(&mesh);
+        for level in 0..2 {
+            h = same(&h, &format!("{name}, level {level}"));
+        }
+        assert!(h.faces().all(|f| h.face_degree(f) == 4), "{name}");
+    }
+    let (mut h, _) = build(&data("sphere.ply"));
+    for f in [0, 200] {
+        h.delete_face(Face::new(f));
+    }
+    let d = same(&h, "sphere with deleted faces");
+    assert_eq!(d.num_faces(), 3 * 318);
+}
