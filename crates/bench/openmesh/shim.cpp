@@ -2,7 +2,9 @@
 // raymesh-mesh-peers: a triangle mesh built from indexed triangles, and
 // the operations raymesh's half-edge mesh is compared on. Built only with
 // the benchmark crate's `openmesh` feature; never part of the library.
+#include <OpenMesh/Core/Mesh/PolyMesh_ArrayKernelT.hh>
 #include <OpenMesh/Core/Mesh/TriMesh_ArrayKernelT.hh>
+#include <OpenMesh/Tools/Subdivider/Uniform/CatmullClarkT.hh>
 #include <OpenMesh/Tools/Subdivider/Uniform/LoopT.hh>
 
 #include <chrono>
@@ -12,6 +14,7 @@
 #include <vector>
 
 typedef OpenMesh::TriMesh_ArrayKernelT<> Mesh;
+typedef OpenMesh::PolyMesh_ArrayKernelT<> PolyMesh;
 
 extern "C" {
 
@@ -173,6 +176,32 @@ uint64_t raymesh_om_edit(const void* mp, int kind, const uint32_t* pairs, size_t
     out->edges = m.n_edges();
     out->faces = m.n_faces();
     out->done = done;
+    return ns;
+}
+
+// One Catmull–Clark step (`Subdivider::Uniform::CatmullClarkT`, which
+// works on a PolyMesh) on a polygon mesh built from `nt` triangles as
+// `raymesh_om_build` builds its triangle mesh (not timed): the
+// nanoseconds the step took, and the vertices and faces after it.
+uint64_t raymesh_om_catmull_clark(const float* pos, size_t nv, const uint32_t* tri, size_t nt,
+                                  size_t* vertices, size_t* faces) {
+    PolyMesh m;
+    m.reserve(nv, 3 * nt / 2 + 3, nt);
+    std::vector<PolyMesh::VertexHandle> vh(nv);
+    for (size_t i = 0; i < nv; ++i) {
+        vh[i] = m.add_vertex(PolyMesh::Point(pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]));
+    }
+    for (size_t t = 0; t < nt; ++t) {
+        m.add_face(vh[tri[3 * t]], vh[tri[3 * t + 1]], vh[tri[3 * t + 2]]);
+    }
+    OpenMesh::Subdivider::Uniform::CatmullClarkT<PolyMesh> cc;
+    auto start = std::chrono::steady_clock::now();
+    cc.attach(m);
+    cc(1);
+    cc.detach();
+    uint64_t ns = since(start);
+    *vertices = m.n_vertices();
+    *faces = m.n_faces();
     return ns;
 }
 

@@ -2,7 +2,8 @@
 //! [--markdown]`: raymesh's half-edge mesh against OpenMesh 9 (built with
 //! `--features openmesh`) on the operations `raymesh mesh --bench` times,
 //! in one run: building the connectivity from indexed triangles, walking
-//! every vertex's one-ring, vertex normals, and one Loop step; and on the
+//! every vertex's one-ring, vertex normals, one Loop step and one
+//! Catmull–Clark step (OpenMesh's on a polygon mesh); and on the
 //! edits OpenMesh users make: every edge split at its midpoint, flipped
 //! where a flip is allowed, collapsed where a collapse is allowed (then
 //! the garbage collected), each over every edge of the mesh in one order
@@ -248,9 +249,11 @@ struct OmRun {
     ring_ns: f64,
     normals_ms: f64,
     loop_ms: f64,
+    cc_ms: f64,
     agree_build: bool,
     agree_ring: bool,
     agree_loop: bool,
+    agree_cc: bool,
     refused: usize,
     /// Per edit of [`EDITS`]: its best time in milliseconds, and whether
     /// what it left matched raymesh's.
@@ -351,8 +354,9 @@ fn compare(args: &Args, mesh: &IndexedMesh, name: String, threads: usize) -> Res
     // One pass of each operation for raymesh, then one for OpenMesh, R
     // times: the best of each.
     let mut he = HalfEdgeMesh::from_indexed(mesh);
-    let [mut build_ms, mut ring_ms, mut normals_ms, mut loop_ms, mut loop_he_ms] =
-        [f64::INFINITY; 5];
+    let [mut build_ms, mut ring_ms, mut normals_ms, mut loop_ms, mut loop_he_ms, mut cc_ms] =
+        [f64::INFINITY; 6];
+    let mut cc_counts = (0, 0);
     let (mut ring_sum, mut ring_n, mut sub) = (0, 0, None);
     let pairs = edge_pairs(mesh);
     let mut edit_ms = [f64::INFINITY; EDITS.len()];
@@ -365,6 +369,9 @@ fn compare(args: &Args, mesh: &IndexedMesh, name: String, threads: usize) -> Res
         normals_ms = best_of(normals_ms, || he.vertex_normals()).0;
         (loop_ms, sub) = best_of(loop_ms, || he.loop_subdivide());
         loop_he_ms = best_of(loop_he_ms, || he.loop_subdivided()).0;
+        let cc;
+        (cc_ms, cc) = best_of(cc_ms, || he.catmull_clark_subdivided());
+        cc_counts = (cc.num_vertices(), cc.num_faces());
         for (i, &(e, _)) in EDITS.iter().enumerate() {
             let (secs, left) = edit(&he, e, &pairs);
             edit_ms[i] = edit_ms[i].min(secs * 1e3);
@@ -376,10 +383,10 @@ fn compare(args: &Args, mesh: &IndexedMesh, name: String, threads: usize) -> Res
     let ring_ns = ring_ms * 1e6 / ring_n.max(1) as f64;
     let sub_faces = sub.as_ref().map(|m| m.triangles().len());
     #[cfg(feature = "openmesh")]
-    let om = Some(om_turns.finish(&he, (ring_sum, ring_n), sub_faces, &edits));
+    let om = Some(om_turns.finish(&he, (ring_sum, ring_n), sub_faces, cc_counts, &edits));
     #[cfg(not(feature = "openmesh"))]
     let om: Option<()> = {
-        let _ = (ring_sum, sub_faces, edits);
+        let _ = (ring_sum, sub_faces, edits, cc_counts);
         None
     };
     let row = |operation, unit, raymesh: f64, other: Other| Row {
@@ -396,20 +403,21 @@ fn compare(args: &Args, mesh: &IndexedMesh, name: String, threads: usize) -> Res
         edits: None,
     };
     #[cfg(feature = "openmesh")]
-    let (b, r, nm, l, ed) = match &om {
+    let (b, r, nm, l, cc, ed) = match &om {
         Some(o) => (
             Some((o.build_ms, o.agree_build)),
             Some((o.ring_ns, o.agree_ring)),
             Some((o.normals_ms, true)),
             Some((o.loop_ms, o.agree_loop)),
+            Some((o.cc_ms, o.agree_cc)),
             o.edits.map(Some),
         ),
-        None => (None, None, None, None, [None; EDITS.len()]),
+        None => (None, None, None, None, None, [None; EDITS.len()]),
     };
     #[cfg(not(feature = "openmesh"))]
-    let (b, r, nm, l, ed): (Other, Other, Other, Other, [Other; EDITS.len()]) = {
+    let (b, r, nm, l, cc, ed): (Other, Other, Other, Other, Other, [Other; EDITS.len()]) = {
         let _ = om;
-        (None, None, None, None, [None; EDITS.len()])
+        (None, None, None, None, None, [None; EDITS.len()])
     };
     // Where the two meshes differ (OpenMesh refused triangles, or raymesh
     // split vertices), so do the one-rings; the rows say why.
@@ -447,6 +455,16 @@ fn compare(args: &Args, mesh: &IndexedMesh, name: String, threads: usize) -> Res
             l,
         ));
     }
+    rows.push(Row {
+        refused: refused(&om),
+        split_vertices: split,
+        ..row(
+            "one Catmull-Clark step, with its connectivity",
+            "ms",
+            cc_ms,
+            cc,
+        )
+    });
     for (i, &(_, name)) in EDITS.iter().enumerate() {
         rows.push(Row {
             refused: refused(&om),
@@ -474,9 +492,11 @@ fn refused(_: &Option<()>) -> Option<usize> {
 #[cfg(feature = "openmesh")]
 struct OmTurns {
     om: openmesh_peer::OmMesh,
-    times: [f64; 4],
+    times: [f64; 5],
     ring: (u64, u64),
     loop_faces: usize,
+    /// Vertices and faces after its Catmull–Clark step.
+    cc: (usize, usize),
     /// Per edit of [`EDITS`]: the best time in milliseconds and what the
     /// last pass left.
     edits: [(f64, Edits); EDITS.len()],
@@ -487,22 +507,26 @@ impl OmTurns {
     fn new(mesh: &IndexedMesh) -> Self {
         Self {
             om: openmesh_peer::OmMesh::build(mesh),
-            times: [f64::INFINITY; 4],
+            times: [f64::INFINITY; 5],
             ring: (0, 0),
             loop_faces: 0,
+            cc: (0, 0),
             edits: [(f64::INFINITY, Edits::default()); EDITS.len()],
         }
     }
 
     /// One run of each operation.
     fn pass(&mut self, mesh: &IndexedMesh, pairs: &[[u32; 2]]) {
-        let [build, ring, normals, step] = &mut self.times;
+        let [build, ring, normals, step, cc] = &mut self.times;
         (*build, self.om) = best_of(*build, || openmesh_peer::OmMesh::build(mesh));
         (*ring, self.ring) = best_of(*ring, || self.om.one_ring());
         *normals = best_of(*normals, || self.om.normals()).0;
         let (s, faces) = self.om.loop_step();
         *step = step.min(s * 1e3);
         self.loop_faces = faces;
+        let (s, vertices, faces) = openmesh_peer::catmull_clark(mesh);
+        *cc = cc.min(s * 1e3);
+        self.cc = (vertices, faces);
         for (i, &(e, _)) in EDITS.iter().enumerate() {
             let (secs, left) = self.om.edit(e, pairs);
             self.edits[i] = (self.edits[i].0.min(secs * 1e3), left);
@@ -511,25 +535,29 @@ impl OmTurns {
 
     /// Its times, and whether each result matches raymesh's (`ring`:
     /// raymesh's one-ring sum and count; `faces`: its triangles after a
-    /// Loop step; `edits`: what its edit passes left).
+    /// Loop step; `cc`: its vertices and faces after a Catmull–Clark
+    /// step; `edits`: what its edit passes left).
     fn finish(
         self,
         he: &HalfEdgeMesh,
         ring: (u64, u64),
         faces: Option<usize>,
+        cc: (usize, usize),
         edits: &[Edits; EDITS.len()],
     ) -> OmRun {
         let (v, e, f) = self.om.counts();
-        let [build_ms, ring_ms, normals_ms, loop_ms] = self.times;
+        let [build_ms, ring_ms, normals_ms, loop_ms, cc_ms] = self.times;
         OmRun {
             build_ms,
             ring_ns: ring_ms * 1e6 / self.ring.1.max(1) as f64,
             normals_ms,
             loop_ms,
+            cc_ms,
             agree_build: self.om.refused == 0
                 && (v, e, f) == (he.num_vertices(), he.num_edges(), he.num_faces()),
             agree_ring: self.ring == ring,
             agree_loop: faces == Some(self.loop_faces),
+            agree_cc: cc == self.cc,
             refused: self.om.refused,
             edits: std::array::from_fn(|i| (self.edits[i].0, self.edits[i].1 == edits[i])),
         }

@@ -33,6 +33,38 @@ extern "C" {
         n: usize,
         out: *mut Edits,
     ) -> u64;
+    fn raymesh_om_catmull_clark(
+        pos: *const f32,
+        nv: usize,
+        tri: *const u32,
+        nt: usize,
+        vertices: *mut usize,
+        faces: *mut usize,
+    ) -> u64;
+}
+
+/// One Catmull–Clark step by OpenMesh (`CatmullClarkT`, on a polygon
+/// mesh built from `mesh`'s triangles, not timed): the seconds the step
+/// took, and its vertices and faces after.
+pub fn catmull_clark(mesh: &IndexedMesh) -> (f64, usize, usize) {
+    let pos: Vec<f32> = mesh.positions.iter().flat_map(|p| p.to_array()).collect();
+    let tri: Vec<u32> = mesh.triangles().into_iter().flatten().collect();
+    let (mut vertices, mut faces) = (0usize, 0usize);
+    // SAFETY: `pos` holds 3 floats a vertex and `tri` 3 indices a
+    // triangle, every index below the vertex count (an `IndexedMesh`
+    // checks them); both outlive the call, which copies them; the two
+    // counts are valid places to write.
+    let ns = unsafe {
+        raymesh_om_catmull_clark(
+            pos.as_ptr(),
+            mesh.positions.len(),
+            tri.as_ptr(),
+            tri.len() / 3,
+            &mut vertices,
+            &mut faces,
+        )
+    };
+    (ns as f64 * 1e-9, vertices, faces)
 }
 
 /// An OpenMesh triangle mesh (`TriMesh_ArrayKernelT<>`), owned.

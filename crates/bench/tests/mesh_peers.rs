@@ -36,9 +36,9 @@ fn every_operation_is_reported_and_openmesh_agrees_where_built() {
         .lines()
         .map(|l| serde_json::from_str(l).expect("a JSON line"))
         .collect();
-    // Nine operations, two meshes (the cube's quads fan-triangulated, so
+    // Ten operations, two meshes (the cube's quads fan-triangulated, so
     // it has a Loop step too), two thread counts.
-    assert_eq!(rows.len(), 36);
+    assert_eq!(rows.len(), 40);
     for r in &rows {
         let t = r["raymesh"].as_f64().unwrap();
         assert!(t.is_finite() && t >= 0.0, "{r}");
@@ -52,7 +52,7 @@ fn every_operation_is_reported_and_openmesh_agrees_where_built() {
             assert!(r["openmesh"].is_null(), "{r}");
         }
     }
-    let ops: Vec<&str> = rows[..9]
+    let ops: Vec<&str> = rows[..10]
         .iter()
         .map(|r| r["operation"].as_str().unwrap())
         .collect();
@@ -64,6 +64,7 @@ fn every_operation_is_reported_and_openmesh_agrees_where_built() {
             "vertex normals",
             "one Loop step, to an indexed mesh",
             "one Loop step, with its connectivity",
+            "one Catmull-Clark step, with its connectivity",
             "split every edge at its midpoint",
             "flip every edge that may be",
             "collapse every edge that may be, then collect",
@@ -74,17 +75,17 @@ fn every_operation_is_reported_and_openmesh_agrees_where_built() {
     // cube's 18), some flipped and some collapsed, every face split (4,463
     // and 12); the same on each thread count (the edits run on one).
     let made = |mesh: usize, threads: usize, op: usize| {
-        rows[(2 * mesh + threads) * 9 + op]["edits"]
+        rows[(2 * mesh + threads) * 10 + op]["edits"]
             .as_u64()
             .unwrap()
     };
     for threads in 0..2 {
-        assert_eq!(made(0, threads, 5), 7371);
-        assert_eq!(made(1, threads, 5), 18);
-        assert_eq!(made(0, threads, 8), 4463);
-        assert_eq!(made(1, threads, 8), 12);
+        assert_eq!(made(0, threads, 6), 7371);
+        assert_eq!(made(1, threads, 6), 18);
+        assert_eq!(made(0, threads, 9), 4463);
+        assert_eq!(made(1, threads, 9), 12);
         for mesh in 0..2 {
-            for op in 5..9 {
+            for op in 6..10 {
                 assert!(made(mesh, threads, op) > 0, "mesh {mesh}, edit {op}");
                 assert_eq!(made(mesh, threads, op), made(mesh, 0, op));
             }
