@@ -1,22 +1,22 @@
 //! `raymesh-mesh-peers MESH... [--threads LIST] [--repeat R] [--json]
 //! [--markdown]`: raymesh's half-edge mesh against OpenMesh 9 (built with
-//! `--features openmesh`) on the operations `raymesh mesh --bench` times,
-//! in one run: building the connectivity from indexed triangles, walking
-//! every vertex's one-ring, vertex normals, one Loop step and one
-//! Catmull–Clark step (OpenMesh's on a polygon mesh); and on the
-//! edits OpenMesh users make: every edge split at its midpoint, flipped
-//! where a flip is allowed, collapsed where a collapse is allowed (then
-//! the garbage collected), each over every edge of the mesh in one order
-//! (the triangles', each edge named by its two vertices and looked up by
-//! `find_halfedge`), and every face split in three at its centroid, on a
-//! copy. The two take turns: a pass of every
-//! operation for raymesh, then one for OpenMesh, `--repeat` times; each
-//! reports its best. OpenMesh runs on one thread; raymesh in a pool of
-//! each given size (the edits are sequential in both). Each operation's
-//! results are compared (counts, the one-ring's neighbours, the faces
-//! after Loop, and after each edit pass the live counts, the number of
-//! edits made and a signature of every vertex's neighbours), so that the
-//! two are seen to do the same work.
+//! `--features openmesh`) in one run, on the operations `raymesh mesh
+//! --bench` times (building the connectivity from indexed triangles,
+//! walking every vertex's one-ring, vertex normals, one Loop step), one
+//! Catmull–Clark step (OpenMesh's on a polygon mesh), and the edits
+//! OpenMesh users make, on a copy: every edge split at its midpoint,
+//! flipped where a flip is allowed, collapsed where a collapse is allowed
+//! (then the garbage collected), each over every edge of the mesh in one
+//! order (the triangles', each edge named by its two vertices and looked
+//! up by `find_halfedge`), and every face split in three at its centroid.
+//! The two take turns: a pass of every operation for raymesh, then one
+//! for OpenMesh, `--repeat` times; each reports its best. OpenMesh runs
+//! on one thread; raymesh in a pool of each given size (the edits are
+//! sequential in both). Each operation's results are compared (counts,
+//! the one-ring's neighbours, the faces after Loop, the vertices and
+//! faces after Catmull–Clark, and after each edit pass the live counts,
+//! the number of edits made and a signature of every vertex's
+//! neighbours), so that the two are seen to do the same work.
 
 #[cfg(feature = "openmesh")]
 mod openmesh_peer;
