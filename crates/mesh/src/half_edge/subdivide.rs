@@ -32,9 +32,15 @@ impl HalfEdgeMesh {
     /// based on triangles", 1987), with Loop's weights
     /// `β = (5/8 - (3/8 + cos(2π/n)/4)²) / n` and the boundary rules
     /// `3/4, 1/8, 1/8` (vertices) and `1/2, 1/2` (edges). `None` if a
-    /// face is not a triangle.
+    /// face is not a triangle. A mesh with deleted elements is subdivided
+    /// as if they were collected.
     #[must_use]
     pub fn loop_subdivide(&self) -> Option<IndexedMesh> {
+        if self.garbage.is_some() {
+            let mut m = self.clone();
+            m.garbage_collect();
+            return m.loop_subdivide();
+        }
         if !self.is_triangle_mesh() {
             return None;
         }
@@ -207,8 +213,16 @@ impl HalfEdgeMesh {
     /// One level of Catmull–Clark subdivision (Catmull & Clark, "Recursively
     /// generated B-spline surfaces on arbitrary topological meshes", 1978):
     /// every face becomes quads; boundaries follow the cubic B-spline rules.
+    ///
+    /// A mesh with deleted elements is subdivided as if they were
+    /// collected (a deleted face's half-edges may belong to other loops).
     #[must_use]
     pub fn catmull_clark(&self) -> IndexedMesh {
+        if self.garbage.is_some() {
+            let mut m = self.clone();
+            m.garbage_collect();
+            return m.catmull_clark();
+        }
         let (nv, ne) = (self.num_vertices(), self.num_edges());
         let mut out = IndexedMesh::with_capacity(0, self.num_halfedges(), 4 * self.num_halfedges());
         out.positions = self.catmull_clark_positions();

@@ -920,3 +920,21 @@ fn catmull_clark_subdivided_is_the_rebuilt_step() {
     let d = same(&h, "sphere with deleted faces");
     assert_eq!(d.num_faces(), 3 * 318);
 }
+
+/// Subdividing a mesh with deleted faces subdivides what is left: the
+/// same as after garbage collection, for both schemes and both outputs.
+#[test]
+fn subdivision_skips_deleted_faces() {
+    let (mut h, _) = build(&data("sphere.ply"));
+    for f in [3, 150, 299] {
+        h.delete_face(Face::new(f));
+    }
+    let mut g = h.clone();
+    g.garbage_collect();
+    assert_eq!(h.loop_subdivide(), g.loop_subdivide());
+    assert_eq!(h.loop_subdivide().unwrap().num_faces(), 4 * 317);
+    assert_eq!(h.catmull_clark(), g.catmull_clark());
+    assert_eq!(h.catmull_clark().num_faces(), 3 * 317);
+    assert_eq!(h.loop_subdivided(), g.loop_subdivided());
+    assert_eq!(h.catmull_clark_subdivided(), g.catmull_clark_subdivided());
+}
