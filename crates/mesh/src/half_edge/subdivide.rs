@@ -9,7 +9,85 @@ use crate::handle::{Face, HalfEdge, Vertex};
 use crate::IndexedMesh;
 use raymesh_geometry::Vec3;
 
+/// The first half of old half-edge `h` in a subdivided mesh: `h` from x
+/// to y (edge e, side s) becomes x→m, its first half, and m→y, its
+/// second, where m is edge e's new vertex: half-edges 4e (x→m) and 4e + 2
+/// (m→y) for side 0, 4e + 3 (y→m) and 4e + 1 (m→x) for side 1, so that
+/// each half's twin is its `^ 1`. The subdivided meshes number the old
+/// edges' halves so, then their new inner edges.
+fn first_half(h: HalfEdge) -> HalfEdge {
+    HalfEdge::new(4 * h.edge().idx() + 3 * (h.idx() & 1))
+}
+
+/// The second half of old half-edge `h` (see [`first_half`]).
+fn second_half(h: HalfEdge) -> HalfEdge {
+    HalfEdge::new(4 * h.edge().idx() + 2 - (h.idx() & 1))
+}
+
 impl HalfEdgeMesh {
+    /// A copy with its deleted elements collected, if it has any: what the
+    /// subdivisions work on then (a deleted face's half-edges may belong
+    /// to other loops).
+    fn collected(&self) -> Option<HalfEdgeMesh> {
+        self.garbage.as_ref()?;
+        let mut m = self.clone();
+        m.garbage_collect();
+        Some(m)
+    }
+
+    /// What both subdivisions written straight into a half-edge mesh
+    /// share: a mesh of `positions` (the old vertices, the edges' new ones,
+    /// then any others) with room for `inner` new edges inside the old
+    /// faces and for `faces` faces, each old half-edge's two halves
+    /// written (their heads, and their links along boundaries), and the
+    /// outgoing half-edges of the old vertices (the first half of theirs)
+    /// and of the edges' new vertices (a second half; on a boundary, the
+    /// boundary's). The inner edges, the faces and the outgoing half-edges
+    /// of any further vertices are the caller's to write.
+    fn halved(&self, positions: Vec<Vec3>, inner: usize, faces: usize) -> HalfEdgeMesh {
+        let (nv, ne) = (self.num_vertices(), self.num_edges());
+        let nh = 4 * ne + 2 * inner;
+        let none = Link {
+            to: Vertex::INVALID,
+            next: HalfEdge::INVALID,
+        };
+        let mut m = HalfEdgeMesh {
+            v_half: Vec::with_capacity(positions.len()),
+            positions,
+            h_link: vec![none; nh],
+            h_face: vec![Face::INVALID; nh],
+            f_half: vec![HalfEdge::INVALID; faces],
+            garbage: None,
+        };
+        for h in (0..self.num_halfedges()).map(HalfEdge::new) {
+            let (f1, s1) = (first_half(h), second_half(h));
+            m.h_link[f1.idx()].to = Vertex::new(nv + h.edge().idx());
+            m.h_link[s1.idx()].to = self.to_vertex(h);
+            if self.is_boundary_halfedge(h) {
+                m.h_link[f1.idx()].next = s1;
+                m.h_link[s1.idx()].next = first_half(self.next_halfedge(h));
+            }
+        }
+        for v in self.vertices() {
+            let h = self.vertex_halfedge(v);
+            m.v_half.push(if h.is_valid() {
+                first_half(h)
+            } else {
+                HalfEdge::INVALID
+            });
+        }
+        for e in self.edges() {
+            let h = e.halfedge(0);
+            let b = if self.is_boundary_halfedge(h.twin()) {
+                h.twin()
+            } else {
+                h
+            };
+            m.v_half.push(second_half(b));
+        }
+        m
+    }
+
     /// Whether every face is a triangle.
     #[must_use]
     pub fn is_triangle_mesh(&self) -> bool {
@@ -36,9 +114,7 @@ impl HalfEdgeMesh {
     /// as if they were collected.
     #[must_use]
     pub fn loop_subdivide(&self) -> Option<IndexedMesh> {
-        if self.garbage.is_some() {
-            let mut m = self.clone();
-            m.garbage_collect();
+        if let Some(m) = self.collected() {
             return m.loop_subdivide();
         }
         if !self.is_triangle_mesh() {
@@ -78,47 +154,19 @@ impl HalfEdgeMesh {
     /// mesh with deleted elements is subdivided as if they were collected.
     #[must_use]
     pub fn loop_subdivided(&self) -> Option<HalfEdgeMesh> {
-        if self.garbage.is_some() {
-            let mut m = self.clone();
-            m.garbage_collect();
+        if let Some(m) = self.collected() {
             return m.loop_subdivided();
         }
         if !self.is_triangle_mesh() {
             return None;
         }
         let (nv, ne, nf) = (self.num_vertices(), self.num_edges(), self.num_faces());
-        // Old half-edge `h` from x to y (edge e, side s) becomes x→m, its
-        // first half, and m→y, its second, where m = nv + e: half-edges
-        // 4e (x→m) and 4e + 2 (m→y) for side 0, 4e + 3 (y→m) and 4e + 1
-        // (m→x) for side 1, so that each half's twin is its `^ 1`.
-        let first = |h: HalfEdge| HalfEdge::new(4 * h.edge().idx() + 3 * (h.idx() & 1));
-        let second = |h: HalfEdge| HalfEdge::new(4 * h.edge().idx() + 2 - (h.idx() & 1));
+        let (first, second) = (first_half, second_half);
         let mid = |h: HalfEdge| Vertex::new(nv + h.edge().idx());
         // Face f's three inside edges, 2 ne + 3 f + k: even half-edges in
         // its corner triangles, odd ones (their twins) in the middle one.
         let inner = |f: usize, k: usize| HalfEdge::new(2 * (2 * ne + 3 * f + k));
-        let nh = 4 * ne + 6 * nf;
-        let none = Link {
-            to: Vertex::INVALID,
-            next: HalfEdge::INVALID,
-        };
-        let mut m = HalfEdgeMesh {
-            positions: self.loop_positions(),
-            v_half: Vec::with_capacity(nv + ne),
-            h_link: vec![none; nh],
-            h_face: vec![Face::INVALID; nh],
-            f_half: vec![HalfEdge::INVALID; 4 * nf],
-            garbage: None,
-        };
-        for h in (0..self.num_halfedges()).map(HalfEdge::new) {
-            let (f1, s1) = (first(h), second(h));
-            m.h_link[f1.idx()].to = mid(h);
-            m.h_link[s1.idx()].to = self.to_vertex(h);
-            if self.is_boundary_halfedge(h) {
-                m.h_link[f1.idx()].next = s1;
-                m.h_link[s1.idx()].next = first(self.next_halfedge(h));
-            }
-        }
+        let mut m = self.halved(self.loop_positions(), 3 * nf, 4 * nf);
         for f in 0..nf {
             let h0 = self.face_halfedge(Face::new(f));
             let h1 = self.next_halfedge(h0);
@@ -145,24 +193,6 @@ impl HalfEdgeMesh {
                 }
                 m.f_half[face.idx()] = t[0];
             }
-        }
-        for v in self.vertices() {
-            let h = self.vertex_halfedge(v);
-            m.v_half.push(if h.is_valid() {
-                first(h)
-            } else {
-                HalfEdge::INVALID
-            });
-        }
-        for e in self.edges() {
-            // A boundary midpoint leaves by its boundary half.
-            let h = e.halfedge(0);
-            let b = if self.is_boundary_halfedge(h.twin()) {
-                h.twin()
-            } else {
-                h
-            };
-            m.v_half.push(second(b));
         }
         Some(m)
     }
@@ -218,9 +248,7 @@ impl HalfEdgeMesh {
     /// collected (a deleted face's half-edges may belong to other loops).
     #[must_use]
     pub fn catmull_clark(&self) -> IndexedMesh {
-        if self.garbage.is_some() {
-            let mut m = self.clone();
-            m.garbage_collect();
+        if let Some(m) = self.collected() {
             return m.catmull_clark();
         }
         let (nv, ne) = (self.num_vertices(), self.num_edges());
@@ -252,9 +280,7 @@ impl HalfEdgeMesh {
     /// if they were collected.
     #[must_use]
     pub fn catmull_clark_subdivided(&self) -> HalfEdgeMesh {
-        if self.garbage.is_some() {
-            let mut m = self.clone();
-            m.garbage_collect();
+        if let Some(m) = self.collected() {
             return m.catmull_clark_subdivided();
         }
         let (nv, ne, nf, nh) = (
@@ -263,9 +289,7 @@ impl HalfEdgeMesh {
             self.num_faces(),
             self.num_halfedges(),
         );
-        // The halves of old half-edges as in `loop_subdivided`.
-        let first = |h: HalfEdge| HalfEdge::new(4 * h.edge().idx() + 3 * (h.idx() & 1));
-        let second = |h: HalfEdge| HalfEdge::new(4 * h.edge().idx() + 2 - (h.idx() & 1));
+        let (first, second) = (first_half, second_half);
         let mid = |h: HalfEdge| Vertex::new(nv + h.edge().idx());
         // Corner k of the new mesh: the k-th face half-edge, face by face,
         // each face's from its first half-edge on; its quad is face k and
@@ -283,27 +307,7 @@ impl HalfEdgeMesh {
         }
         let nc = k as usize;
         let inner = |h: HalfEdge| HalfEdge::new(2 * (2 * ne + corner[h.idx()] as usize));
-        let none = Link {
-            to: Vertex::INVALID,
-            next: HalfEdge::INVALID,
-        };
-        let mut m = HalfEdgeMesh {
-            positions: self.catmull_clark_positions(),
-            v_half: Vec::with_capacity(nv + ne + nf),
-            h_link: vec![none; 4 * ne + 2 * nc],
-            h_face: vec![Face::INVALID; 4 * ne + 2 * nc],
-            f_half: vec![HalfEdge::INVALID; nc],
-            garbage: None,
-        };
-        for h in (0..nh).map(HalfEdge::new) {
-            let (f1, s1) = (first(h), second(h));
-            m.h_link[f1.idx()].to = mid(h);
-            m.h_link[s1.idx()].to = self.to_vertex(h);
-            if self.is_boundary_halfedge(h) {
-                m.h_link[f1.idx()].next = s1;
-                m.h_link[s1.idx()].next = first(self.next_halfedge(h));
-            }
-        }
+        let mut m = self.halved(self.catmull_clark_positions(), nc, nc);
         for f in self.faces() {
             let c = Vertex::new(nv + ne + f.idx());
             for h in self.face_halfedges(f) {
@@ -320,23 +324,7 @@ impl HalfEdgeMesh {
                 m.f_half[face.idx()] = quad[0];
             }
         }
-        for v in self.vertices() {
-            let h = self.vertex_halfedge(v);
-            m.v_half.push(if h.is_valid() {
-                first(h)
-            } else {
-                HalfEdge::INVALID
-            });
-        }
-        for e in self.edges() {
-            let h = e.halfedge(0);
-            let b = if self.is_boundary_halfedge(h.twin()) {
-                h.twin()
-            } else {
-                h
-            };
-            m.v_half.push(second(b));
-        }
+        // Each face's new vertex leaves by its first corner's inner edge.
         for &k in &first_corner {
             m.v_half
                 .push(HalfEdge::new(2 * (2 * ne + k as usize)).twin());

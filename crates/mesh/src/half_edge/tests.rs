@@ -193,6 +193,28 @@ fn normals_point_out_of_a_closed_mesh() {
 /// The half-edge mesh's normals (gathered around vertices, with a fast
 /// arctangent) match the indexed mesh's (scattered from faces, with `acos`)
 /// on closed and open meshes, quads, holes and degenerate triangles.
+/// A mixed open mesh: a quad and a triangle sharing an edge, and a
+/// pentagon apart.
+fn mixed_polygons() -> IndexedMesh {
+    let mut m = IndexedMesh::new();
+    m.positions = vec![
+        Vec3::ZERO,
+        Vec3::X,
+        Vec3::new(1.0, 1.0, 0.2),
+        Vec3::Y,
+        Vec3::new(0.5, -1.0, 0.3),
+        Vec3::new(2.0, 0.0, 0.0),
+        Vec3::new(3.0, 0.0, 0.1),
+        Vec3::new(3.0, 1.0, 0.0),
+        Vec3::new(2.5, 1.5, 0.0),
+        Vec3::new(2.0, 1.0, 0.0),
+    ];
+    for f in [&[0u32, 1, 2, 3][..], &[0, 4, 1], &[5, 6, 7, 8, 9]] {
+        m.push_face_unchecked(f);
+    }
+    m
+}
+
 #[test]
 fn normals_match_the_indexed_meshs() {
     for name in [
@@ -214,24 +236,7 @@ fn normals_match_the_indexed_meshs() {
             assert!((*a - *b).length() < tol, "{name} vertex {v}: {a} vs {b}");
         }
     }
-    // A mixed mesh: a quad and a triangle sharing an edge, and a pentagon.
-    let p = vec![
-        Vec3::ZERO,
-        Vec3::X,
-        Vec3::new(1.0, 1.0, 0.2),
-        Vec3::Y,
-        Vec3::new(0.5, -1.0, 0.3),
-        Vec3::new(2.0, 0.0, 0.0),
-        Vec3::new(3.0, 0.0, 0.1),
-        Vec3::new(3.0, 1.0, 0.0),
-        Vec3::new(2.5, 1.5, 0.0),
-        Vec3::new(2.0, 1.0, 0.0),
-    ];
-    let mut m = IndexedMesh::new();
-    m.positions = p;
-    for f in [&[0u32, 1, 2, 3][..], &[0, 4, 1], &[5, 6, 7, 8, 9]] {
-        m.push_face_unchecked(f);
-    }
+    let m = mixed_polygons();
     let (h, _) = build(&m);
     let flat = crate::normals::vertex_normals(&m);
     for (v, (a, b)) in flat.iter().zip(h.vertex_normals()).enumerate() {
@@ -695,6 +700,42 @@ fn moved_vertices_keep_their_connectivity() {
         .any(|w| (n0[w.idx()] - n1[w.idx()]).length() > 1e-3));
 }
 
+/// A subdivision step written straight into a half-edge mesh (`direct`)
+/// against the same step's indexed mesh (`indexed`) and the half-edge
+/// mesh built from it: valid, written out as the indexed mesh face for
+/// face, with the built mesh's positions, edge count, one-rings (as
+/// sets), boundary vertices and boundary loops (as lengths).
+fn assert_same_step(direct: &HalfEdgeMesh, indexed: &IndexedMesh, what: &str) {
+    direct.validate().unwrap();
+    let (rebuilt, report) = build(indexed);
+    assert!(report.is_clean(), "{what}");
+    assert_eq!(&direct.to_indexed(), indexed, "{what}");
+    assert_eq!(direct.positions(), rebuilt.positions(), "{what}");
+    assert_eq!(
+        (direct.num_edges(), direct.num_halfedges()),
+        (rebuilt.num_edges(), rebuilt.num_halfedges()),
+        "{what}"
+    );
+    for v in direct.vertices() {
+        let mut a: Vec<u32> = direct.vertex_vertices(v).map(|w| w.0).collect();
+        let mut b: Vec<u32> = rebuilt.vertex_vertices(v).map(|w| w.0).collect();
+        a.sort_unstable();
+        b.sort_unstable();
+        assert_eq!(a, b, "{what}: vertex {v:?}");
+        assert_eq!(
+            direct.is_boundary_vertex(v),
+            rebuilt.is_boundary_vertex(v),
+            "{what}"
+        );
+    }
+    let loops = |m: &HalfEdgeMesh| {
+        let mut l: Vec<usize> = m.boundary_loops().iter().map(Vec::len).collect();
+        l.sort_unstable();
+        l
+    };
+    assert_eq!(loops(direct), loops(&rebuilt), "{what}");
+}
+
 /// The Loop step written straight into a half-edge mesh is the mesh that
 /// building from the indexed step gives: the same positions and faces
 /// (corners in the same order), valid, with the same one-rings and
@@ -704,39 +745,9 @@ fn moved_vertices_keep_their_connectivity() {
 fn loop_subdivided_is_the_rebuilt_loop_step() {
     let same = |h: &HalfEdgeMesh, what: &str| {
         let direct = h.loop_subdivided().unwrap();
-        direct.validate().unwrap();
         let mut g = h.clone();
         g.garbage_collect();
-        let indexed = g.loop_subdivide().unwrap();
-        let (rebuilt, report) = build(&indexed);
-        assert!(report.is_clean(), "{what}");
-        // Written out, the step's own indexed mesh, face for face.
-        assert_eq!(direct.to_indexed(), indexed, "{what}");
-        assert_eq!(direct.positions(), rebuilt.positions(), "{what}");
-        assert_eq!(direct.to_indexed(), rebuilt.to_indexed(), "{what}");
-        assert_eq!(
-            (direct.num_edges(), direct.num_halfedges()),
-            (rebuilt.num_edges(), rebuilt.num_halfedges()),
-            "{what}"
-        );
-        for v in direct.vertices() {
-            let mut a: Vec<u32> = direct.vertex_vertices(v).map(|w| w.0).collect();
-            let mut b: Vec<u32> = rebuilt.vertex_vertices(v).map(|w| w.0).collect();
-            a.sort_unstable();
-            b.sort_unstable();
-            assert_eq!(a, b, "{what}: vertex {v:?}");
-            assert_eq!(
-                direct.is_boundary_vertex(v),
-                rebuilt.is_boundary_vertex(v),
-                "{what}"
-            );
-        }
-        let loops = |m: &HalfEdgeMesh| {
-            let mut l: Vec<usize> = m.boundary_loops().iter().map(Vec::len).collect();
-            l.sort_unstable();
-            l
-        };
-        assert_eq!(loops(&direct), loops(&rebuilt), "{what}");
+        assert_same_step(&direct, &g.loop_subdivide().unwrap(), what);
         direct
     };
     for name in [
@@ -853,54 +864,13 @@ fn loop_subdivided_is_the_rebuilt_loop_step() {
 fn catmull_clark_subdivided_is_the_rebuilt_step() {
     let same = |h: &HalfEdgeMesh, what: &str| {
         let direct = h.catmull_clark_subdivided();
-        direct.validate().unwrap();
         let mut g = h.clone();
         g.garbage_collect();
-        let indexed = g.catmull_clark();
-        let (rebuilt, report) = build(&indexed);
-        assert!(report.is_clean(), "{what}");
-        assert_eq!(direct.to_indexed(), indexed, "{what}");
-        assert_eq!(
-            (direct.num_edges(), direct.num_halfedges()),
-            (rebuilt.num_edges(), rebuilt.num_halfedges()),
-            "{what}"
-        );
-        for v in direct.vertices() {
-            let mut a: Vec<u32> = direct.vertex_vertices(v).map(|w| w.0).collect();
-            let mut b: Vec<u32> = rebuilt.vertex_vertices(v).map(|w| w.0).collect();
-            a.sort_unstable();
-            b.sort_unstable();
-            assert_eq!(a, b, "{what}: vertex {v:?}");
-            assert_eq!(
-                direct.is_boundary_vertex(v),
-                rebuilt.is_boundary_vertex(v),
-                "{what}"
-            );
-        }
-        assert_eq!(
-            direct.boundary_loops().len(),
-            rebuilt.boundary_loops().len(),
-            "{what}"
-        );
+        assert_same_step(&direct, &g.catmull_clark(), what);
         direct
     };
-    let mut mixed = IndexedMesh::new();
-    mixed.positions = vec![
-        Vec3::ZERO,
-        Vec3::X,
-        Vec3::new(1.0, 1.0, 0.2),
-        Vec3::Y,
-        Vec3::new(0.5, -1.0, 0.3),
-        Vec3::new(2.0, 0.0, 0.0),
-        Vec3::new(3.0, 0.0, 0.1),
-        Vec3::new(3.0, 1.0, 0.0),
-        Vec3::new(2.5, 1.5, 0.0),
-        Vec3::new(2.0, 1.0, 0.0),
-        Vec3::splat(7.0),
-    ];
-    for f in [&[0u32, 1, 2, 3][..], &[0, 4, 1], &[5, 6, 7, 8, 9]] {
-        mixed.push_face_unchecked(f);
-    }
+    let mut mixed = mixed_polygons();
+    mixed.positions.push(Vec3::splat(7.0));
     for (name, mesh) in [
         ("cube_quad.off", data("cube_quad.off")),
         ("mesh_with_border.off", data("mesh_with_border.off")),
