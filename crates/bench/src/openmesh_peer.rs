@@ -43,12 +43,19 @@ extern "C" {
     ) -> u64;
 }
 
+/// `mesh` as the shim takes it: 3 floats a vertex, 3 indices a triangle
+/// (polygons fan-triangulated).
+fn flat(mesh: &IndexedMesh) -> (Vec<f32>, Vec<u32>) {
+    let pos = mesh.positions.iter().flat_map(|p| p.to_array()).collect();
+    let tri = mesh.triangles().into_iter().flatten().collect();
+    (pos, tri)
+}
+
 /// One Catmull–Clark step by OpenMesh (`CatmullClarkT`, on a polygon
 /// mesh built from `mesh`'s triangles, not timed): the seconds the step
 /// took, and its vertices and faces after.
 pub fn catmull_clark(mesh: &IndexedMesh) -> (f64, usize, usize) {
-    let pos: Vec<f32> = mesh.positions.iter().flat_map(|p| p.to_array()).collect();
-    let tri: Vec<u32> = mesh.triangles().into_iter().flatten().collect();
+    let (pos, tri) = flat(mesh);
     let (mut vertices, mut faces) = (0usize, 0usize);
     // SAFETY: `pos` holds 3 floats a vertex and `tri` 3 indices a
     // triangle, every index below the vertex count (an `IndexedMesh`
@@ -78,8 +85,7 @@ impl OmMesh {
     /// OpenMesh's mesh of `mesh`'s vertices and fan-triangulated faces,
     /// added one by one (`add_vertex`, `add_face`), as its readers do.
     pub fn build(mesh: &IndexedMesh) -> Self {
-        let pos: Vec<f32> = mesh.positions.iter().flat_map(|p| p.to_array()).collect();
-        let tri: Vec<u32> = mesh.triangles().into_iter().flatten().collect();
+        let (pos, tri) = flat(mesh);
         let mut refused = 0usize;
         // SAFETY: `pos` holds 3 floats a vertex and `tri` 3 indices a
         // triangle, every index below the vertex count (an `IndexedMesh`
