@@ -181,23 +181,23 @@ fn edit(he: &HalfEdgeMesh, edit: Edit, pairs: &[[u32; 2]]) -> (f64, Edits) {
             }
             done += usize::from(m.split_face(f, c / 3.0).is_some());
         }
-    }
-    let pairs = if edit == Edit::SplitFace { &[] } else { pairs };
-    for &[a, b] in pairs {
-        let (a, b) = (Vertex::new(a as usize), Vertex::new(b as usize));
-        let Some(h) = m.find_halfedge(a, b) else {
-            continue;
-        };
-        let made = match edit {
-            Edit::Split => {
-                let p = (m.position(a) + m.position(b)) * 0.5;
-                m.split(h.edge(), p).is_some()
-            }
-            Edit::Flip => m.flip(h.edge()),
-            Edit::Collapse => m.collapse(h),
-            Edit::SplitFace => unreachable!("faces are split above"),
-        };
-        done += usize::from(made);
+    } else {
+        for &[a, b] in pairs {
+            let (a, b) = (Vertex::new(a as usize), Vertex::new(b as usize));
+            let Some(h) = m.find_halfedge(a, b) else {
+                continue;
+            };
+            let made = match edit {
+                Edit::Split => {
+                    let p = (m.position(a) + m.position(b)) * 0.5;
+                    m.split(h.edge(), p).is_some()
+                }
+                Edit::Flip => m.flip(h.edge()),
+                Edit::Collapse => m.collapse(h),
+                Edit::SplitFace => unreachable!("faces are split above"),
+            };
+            done += usize::from(made);
+        }
     }
     let mut secs = start.elapsed().as_secs_f64();
     let ring = ring_signature(&m);
